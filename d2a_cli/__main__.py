@@ -1,0 +1,3 @@
+from d2a_cli.main import main
+
+main()

@@ -1,0 +1,163 @@
+"""`d2a artifacts`: list, inspect, verify, garbage-collect and tag stored artifacts."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.table import Table
+from rich.tree import Tree
+
+from d2a_cli.common import RunContext, out_console, report_error, with_common_options
+from d2a_core.errors import IntegrityError
+
+app = typer.Typer(help="Inspect and maintain the artifact store.", no_args_is_help=True)
+
+
+def _human_size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return str(n)
+
+
+@app.command("ls")
+@with_common_options
+def ls(
+    kind: Annotated[Optional[str], typer.Option("--kind", help="Only artifacts of this kind.")] = None,
+    *,
+    run: RunContext,
+) -> None:
+    """List stored artifacts, oldest first."""
+    store = run.store()
+    refs = store.refs()
+    rows = [
+        {
+            "id": art.id,
+            "kind": art.kind,
+            "created": art.created,
+            "size": art.size,
+            "aliases": [a for a, t in refs.items() if t == art.id],
+            "labels": art.labels,
+        }
+        for art in store.list(kind)
+    ]
+
+    def render(result: dict[str, Any]) -> None:
+        table = Table(title=f"artifacts in {store.root}", title_justify="left")
+        for col in ("id", "kind", "created", "size", "aliases"):
+            table.add_column(col)
+        for row in result["artifacts"]:
+            table.add_row(row["id"][:12], row["kind"], row["created"][:19], _human_size(row["size"]),
+                          ", ".join(row["aliases"]))
+        out_console.print(table)
+
+    run.emit({"store": str(store.root), "artifacts": rows}, render)
+
+
+def _tree(node: dict[str, Any], tree: Tree) -> None:
+    for child in node.get("inputs", []):
+        label = f"{child['id'][:12]} [dim]{child['kind']}[/]"
+        if child.get("aliases"):
+            label += f" ({', '.join(child['aliases'])})"
+        if child.get("shared"):
+            label += " [dim](shown above)[/]"
+        _tree(child, tree.add(label))
+
+
+@app.command("show")
+@with_common_options
+def show(
+    ref: Annotated[str, typer.Argument(help="Artifact id, unique id prefix or alias.")],
+    *,
+    run: RunContext,
+) -> None:
+    """Show an artifact's manifest and its lineage (inputs, recursively)."""
+    store = run.store()
+    art = store.get(ref)
+    result = {
+        "id": art.id,
+        "aliases": store.aliases_of(art.id),
+        "manifest": art.manifest,
+        "lineage": store.lineage(art.id),
+    }
+
+    def render(result: dict[str, Any]) -> None:
+        m = result["manifest"]
+        out_console.print(f"[bold]{art.id}[/]  kind={m['kind']}  seed={m['seed']}")
+        if result["aliases"]:
+            out_console.print(f"aliases: {', '.join(result['aliases'])}")
+        prov = m["provenance"]
+        code = prov["code"]
+        out_console.print(f"created {prov['created']}  code {code['version']} {code['git_commit'] or ''}"
+                          f"{' (dirty)' if code['dirty'] else ''}")
+        out_console.print(f"command: {' '.join(prov['command'])}")
+        if m["labels"]:
+            out_console.print(f"labels: {m['labels']}")
+        files = Table("file", "size", "sha256")
+        for name, info in sorted(m["files"].items()):
+            files.add_row(name, _human_size(info["size"]), info["sha256"][:16])
+        out_console.print(files)
+        tree = Tree(f"[bold]lineage[/] {art.id[:12]} {m['kind']}")
+        _tree(result["lineage"], tree)
+        out_console.print(tree)
+
+    run.emit(result, render)
+
+
+@app.command("verify")
+@with_common_options
+def verify(
+    refs: Annotated[Optional[list[str]], typer.Argument(help="Artifacts to check (default: all).")] = None,
+    *,
+    run: RunContext,
+) -> None:
+    """Re-hash every blob and manifest; exit 3 naming each corrupted artifact."""
+    store = run.store()
+    problems = store.verify(refs or None)
+    checked = len(refs) if refs else len(store.list())
+    result = {"checked": checked, "ok": not problems, "problems": [p.as_dict() for p in problems]}
+
+    def render(result: dict[str, Any]) -> None:
+        if result["ok"]:
+            out_console.print(f"[green]ok[/]: {checked} artifacts verified")
+
+    run.emit(result, render)
+    if problems:
+        # the JSON result above already lists the problems; stderr gets the human version
+        lines = [f"{p.artifact or '-'}: {p.what}" for p in problems]
+        report_error(f"{len(problems)} problem(s) in store {store.root}:\n  " + "\n  ".join(lines),
+                     IntegrityError.exit_code, "IntegrityError", json_too=False)
+        raise typer.Exit(IntegrityError.exit_code)
+
+
+@app.command("gc")
+@with_common_options
+def gc(
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Report what would be removed; remove nothing.")] = False,
+    *,
+    run: RunContext,
+) -> None:
+    """Remove artifacts no alias reaches (directly or as an input), their blobs and temp files."""
+    report = run.store().gc(dry_run=dry_run)
+
+    def render(result: dict[str, Any]) -> None:
+        verb = "would remove" if dry_run else "removed"
+        out_console.print(f"{verb} {len(result['artifacts'])} artifacts, {result['blobs']} blobs, "
+                          f"{result['temp_files']} temp files ({_human_size(result['bytes_freed'])})")
+
+    run.emit(report.as_dict(), render)
+
+
+@app.command("tag")
+@with_common_options
+def tag(
+    ref: Annotated[str, typer.Argument(help="Artifact id, unique id prefix or alias.")],
+    alias: Annotated[str, typer.Argument(help="Alias to set, e.g. track/hairpin.")],
+    *,
+    run: RunContext,
+) -> None:
+    """Point ALIAS at an artifact (replacing the alias's old target)."""
+    art_id = run.store().tag(ref, alias)
+    run.emit({"alias": alias, "id": art_id}, lambda r: out_console.print(f"{alias} -> {art_id}"))

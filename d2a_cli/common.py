@@ -1,0 +1,130 @@
+"""What every subcommand shares: global options, output on stdout/stderr, and error reporting.
+
+The global options (`--store`, `--json`, `--seed`, `--device`) are accepted both before the
+subcommand (`d2a --json artifacts ls`) and after it (`d2a artifacts ls --json`); the value given
+closest to the subcommand wins.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Callable, Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+DEFAULT_STORE = "artifacts"
+
+# Progress bars, logs and human-readable errors go to stderr so stdout stays parseable with --json.
+err_console = Console(stderr=True)
+out_console = Console()
+
+
+@dataclass
+class RunContext:
+    """The resolved global options of one invocation."""
+
+    json: bool = False
+    store_path: Path = field(default_factory=lambda: Path(os.environ.get("D2A_STORE", DEFAULT_STORE)))
+    seed: int = 0
+    device: str = "cpu"
+
+    def store(self):
+        from d2a_core.artifacts import Store
+
+        return Store(self.store_path)
+
+    def emit(self, result: Any, render: Callable[[Any], None] | None = None) -> None:
+        """Print a command's result: JSON on stdout with --json, else a human rendering."""
+        if self.json:
+            sys.stdout.write(json.dumps(result, indent=2, sort_keys=False, default=str) + "\n")
+            sys.stdout.flush()
+        elif render is not None:
+            render(result)
+        else:
+            out_console.print_json(json.dumps(result, default=str))
+
+
+# One instance per process: the CLI runs one command per process, and the error handler in
+# `main` needs to know whether to answer in JSON even when parsing failed half-way.
+current = RunContext()
+
+StoreOpt = Annotated[
+    Optional[Path],
+    typer.Option("--store", help="Artifact store directory [env: D2A_STORE; default: ./artifacts].",
+                 show_default=False),
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout (progress stays on stderr).")]
+SeedOpt = Annotated[Optional[int], typer.Option("--seed", help="Random seed of the run [default: 0].", show_default=False)]
+DeviceOpt = Annotated[
+    Optional[str], typer.Option("--device", help="Torch device for training, e.g. cpu or cuda [default: cpu].",
+                                show_default=False)
+]
+
+
+def apply_options(store: Path | None, json_out: bool, seed: int | None, device: str | None) -> RunContext:
+    if store is not None:
+        current.store_path = store
+    if json_out:
+        current.json = True
+    if seed is not None:
+        current.seed = seed
+    if device is not None:
+        current.device = device
+    return current
+
+
+_COMMON = [
+    inspect.Parameter("store", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=StoreOpt),
+    inspect.Parameter("json_out", inspect.Parameter.KEYWORD_ONLY, default=False, annotation=JsonOpt),
+    inspect.Parameter("seed", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=SeedOpt),
+    inspect.Parameter("device", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=DeviceOpt),
+]
+
+
+def with_common_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Add the global options to a leaf command; the command receives `run: RunContext`."""
+    sig = inspect.signature(func, eval_str=True)  # resolve string annotations in func's module
+    own = [p for p in sig.parameters.values() if p.name != "run"]
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        run = apply_options(*(kwargs.pop(p.name) for p in _COMMON))
+        return func(*args, run=run, **kwargs)
+
+    params = own + _COMMON
+    wrapper.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params}
+    del wrapper.__wrapped__  # typer must see the new signature, not the wrapped one
+    return wrapper
+
+
+# --- config options, for the subcommands whose work depends on a config ---------------------
+PresetOpt = Annotated[str, typer.Option("--preset", help="Config preset: smoke, quick or paper.")]
+ConfigFileOpt = Annotated[
+    Optional[Path], typer.Option("--config", help="YAML file merged over the preset.", show_default=False)
+]
+SetOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("--set", help="Override one value, e.g. --set reward.c_pass=5 (repeatable; applied last).",
+                 show_default=False),
+]
+
+
+def report_error(message: str, code: int, kind: str, json_too: bool = True) -> None:
+    """Tell the user what went wrong: on stderr, and as JSON on stdout when --json was asked for."""
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    if current.json and json_too:
+        sys.stdout.write(json.dumps({"error": {"type": kind, "message": message, "exit_code": code}}) + "\n")
+
+
+def wants_json(argv: list[str]) -> bool:
+    """Whether --json is on the command line, for errors raised before options are parsed."""
+    return "--json" in argv

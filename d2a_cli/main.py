@@ -1,0 +1,86 @@
+"""The `d2a` command line: global options, subcommand registration and exit codes.
+
+Exit codes: 0 ok, 1 runtime failure, 2 usage or config error, 3 integrity failure.
+"""
+
+from __future__ import annotations
+
+import sys
+import traceback
+from typing import Optional
+
+import typer
+
+from d2a_cli import artifacts_cmd, config_cmd
+from d2a_cli.common import DeviceOpt, JsonOpt, SeedOpt, StoreOpt, apply_options, current, report_error, wants_json
+from d2a_core.errors import D2AError
+
+app = typer.Typer(
+    name="d2a",
+    help="Dream2Assist: intent-inferring shared-control assistance for racing.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # help texts contain literal [brackets]
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+app.add_typer(artifacts_cmd.app, name="artifacts")
+app.add_typer(config_cmd.app, name="config")
+
+
+def _version(value: bool) -> None:
+    if value:
+        from d2a_core.artifacts import code_version
+
+        info = code_version()
+        commit = f" ({info['git_commit'][:12]}{'-dirty' if info['dirty'] else ''})" if info["git_commit"] else ""
+        typer.echo(f"d2a {info['version']}{commit}")
+        raise typer.Exit()
+
+
+@app.callback()
+def cli(
+    store: StoreOpt = None,
+    json_out: JsonOpt = False,
+    seed: SeedOpt = None,
+    device: DeviceOpt = None,
+    version: Optional[bool] = typer.Option(
+        None, "--version", callback=_version, is_eager=True, help="Show the version and exit."
+    ),
+) -> None:
+    """Dream2Assist: intent-inferring shared-control assistance for racing."""
+    apply_options(store, json_out, seed, device)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: run the app and map every failure to its exit code."""
+    argv = sys.argv[1:] if argv is None else argv
+    current.json = wants_json(argv)
+    try:
+        code = app(args=argv, prog_name="d2a", standalone_mode=False)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.TyperException as exc:  # usage errors: bad option, missing argument (exit 2)
+        if current.json:
+            report_error(exc.format_message(), exc.exit_code, "UsageError")
+        elif hasattr(exc, "show"):
+            exc.show()
+        else:
+            report_error(exc.format_message(), exc.exit_code, "UsageError")
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        report_error("aborted", 130, "Aborted")
+        sys.exit(130)
+    except D2AError as exc:
+        report_error(str(exc), exc.exit_code, type(exc).__name__)
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # an unexpected failure is a runtime error (1), with its traceback
+        traceback.print_exc(file=sys.stderr)
+        report_error(f"{type(exc).__name__}: {exc}", 1, type(exc).__name__)
+        sys.exit(1)
+    # standalone_mode=False returns the exit code of a typer.Exit (e.g. after --help) or None
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+if __name__ == "__main__":
+    main()

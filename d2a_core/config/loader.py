@@ -1,0 +1,199 @@
+"""Resolve a run's configuration: preset, then a user file, then `--set` overrides, validated.
+
+Every leaf value remembers where it came from (the preset file, the user's file or the `--set`
+argument), so a validation error can name the key, the offending value and its source.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from d2a_core.errors import ConfigError
+
+PRESET_DIR = Path(__file__).parent / "presets"
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads YAML 1.2 floats such as `1e-4` (PyYAML reads them as strings)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """Parse YAML text; a syntax error becomes a ConfigError naming the source and line."""
+    try:
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{where}: invalid YAML: {problem}") from None
+
+
+def available_presets() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
+
+
+@dataclass
+class ResolvedConfig:
+    """A validated config plus the provenance of each value that did not come from a default."""
+
+    config: BaseModel
+    preset: str
+    config_file: str | None
+    overrides: list[str]
+    sources: dict[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.config.model_dump(mode="json")
+
+    def section(self, *names: str) -> dict[str, Any]:
+        """The named top-level sections only: what an artifact actually depends on."""
+        full = self.as_dict()
+        return {name: full[name] for name in names}
+
+
+def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict) and value:
+            out.update(_flatten(value, path + "."))
+        else:
+            out[path] = value
+    return out
+
+
+def _merge(base: dict, layer: dict, sources: dict[str, str], source: str, prefix: str = "") -> None:
+    """Deep-merge `layer` into `base` in place, recording the source of each leaf written."""
+    for key, value in layer.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            _merge(base[key], value, sources, source, path + ".")
+        else:
+            base[key] = copy.deepcopy(value)
+            if isinstance(value, dict) and value:
+                for leaf in _flatten(value, path + "."):
+                    sources[leaf] = source
+            else:
+                sources[path] = source
+
+
+def _load_mapping(path: Path, label: str) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from None
+    data = parse_yaml(text, label)
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{label}: the top level must be a mapping of sections, got {type(data).__name__}")
+    return data
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """`a.b.c=value` -> ("a.b.c", parsed value). The value is read as YAML (so 256 is an int)."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set {text!r}: expected KEY.PATH=VALUE, e.g. --set dreamer.units=256")
+    value = parse_yaml(raw, f"--set {text}") if raw.strip() else ""
+    return key, value
+
+
+def _nest(key: str, value: Any) -> dict[str, Any]:
+    tree: dict[str, Any] = {}
+    node = tree
+    parts = key.split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+    node[parts[-1]] = value
+    return tree
+
+
+def _known_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
+    keys = []
+    for name, info in model.model_fields.items():
+        path = f"{prefix}{name}"
+        keys.append(path)
+        ann = info.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            keys.extend(_known_keys(ann, path + "."))
+    return keys
+
+
+def _describe_errors(exc: ValidationError, schema: type[BaseModel], sources: dict[str, str]) -> str:
+    lines = []
+    known = _known_keys(schema)
+    for err in exc.errors():
+        key = ".".join(str(p) for p in err["loc"])
+        # list items report their index; the source is recorded for the whole list
+        source_key = key
+        while source_key and source_key not in sources and "." in source_key:
+            source_key = source_key.rsplit(".", 1)[0]
+        source = sources.get(source_key, "defaults")
+        value = err.get("input")
+        if err["type"] == "extra_forbidden":
+            hint = difflib.get_close_matches(key, known, n=3, cutoff=0.6)
+            did_you_mean = f" (did you mean {', '.join(hint)}?)" if hint else ""
+            lines.append(f"unknown key '{key}' = {value!r} from {source}{did_you_mean}")
+        else:
+            lines.append(f"invalid value for '{key}': {value!r} from {source}: {err['msg']}")
+    return "invalid configuration:\n  " + "\n  ".join(lines)
+
+
+def resolve_config(
+    schema: type[BaseModel],
+    preset: str = "quick",
+    config_file: str | Path | None = None,
+    overrides: Iterable[str] = (),
+) -> ResolvedConfig:
+    """Merge preset < file < overrides and validate against `schema`."""
+    if preset not in available_presets():
+        raise ConfigError(f"unknown preset {preset!r}; choose one of {', '.join(available_presets())}")
+    preset_path = PRESET_DIR / f"{preset}.yaml"
+    sources: dict[str, str] = {}
+    merged: dict[str, Any] = {}
+    _merge(merged, _load_mapping(preset_path, f"preset '{preset}' ({preset_path})"), sources,
+           f"preset '{preset}' ({preset_path})")
+    if config_file is not None:
+        path = Path(config_file)
+        _merge(merged, _load_mapping(path, str(path)), sources, str(path))
+    overrides = list(overrides)
+    for text in overrides:
+        key, value = parse_override(text)
+        _merge(merged, _nest(key, value), sources, f"--set {text}")
+    try:
+        config = schema.model_validate(merged)
+    except ValidationError as exc:
+        raise ConfigError(_describe_errors(exc, schema, sources)) from None
+    return ResolvedConfig(
+        config=config,
+        preset=preset,
+        config_file=str(config_file) if config_file is not None else None,
+        overrides=overrides,
+        sources=sources,
+    )
