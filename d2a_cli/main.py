@@ -11,7 +11,7 @@ from typing import Optional
 
 import typer
 
-from d2a_cli import artifacts_cmd, config_cmd
+from d2a_cli import artifacts_cmd, config_cmd, make_track_cmd
 from d2a_cli.common import DeviceOpt, JsonOpt, SeedOpt, StoreOpt, apply_options, current, report_error, wants_json
 from d2a_core.errors import D2AError
 
@@ -24,6 +24,7 @@ app = typer.Typer(
     rich_markup_mode=None,  # help texts contain literal [brackets]
     context_settings={"help_option_names": ["-h", "--help"]},
 )
+app.command("make-track")(make_track_cmd.make_track)
 app.add_typer(artifacts_cmd.app, name="artifacts")
 app.add_typer(config_cmd.app, name="config")
 

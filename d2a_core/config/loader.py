@@ -154,7 +154,10 @@ def _describe_errors(exc: ValidationError, schema: type[BaseModel], sources: dic
         source_key = key
         while source_key and source_key not in sources and "." in source_key:
             source_key = source_key.rsplit(".", 1)[0]
-        source = sources.get(source_key, "defaults")
+        source = sources.get(source_key)
+        if source is None:  # a whole-section check (e.g. pace_min <= pace_max): name what set its keys
+            below = sorted({src for k, src in sources.items() if k.startswith(key + ".")})
+            source = ", ".join(below) if below else "defaults"
         value = err.get("input")
         if err["type"] == "extra_forbidden":
             hint = difflib.get_close_matches(key, known, n=3, cutoff=0.6)

@@ -6,10 +6,16 @@ schema stays the single place that lists what a config file may contain.
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from d2a_core.config.section import Section
 from d2a_core.objectives.rewards import RewardConfig
+from d2a_core.sim.driver import DriverConfig
+from d2a_core.sim.episode_log_config import EpisodeLogConfig
+from d2a_core.sim.race_env import EnvConfig
+from d2a_core.sim.vehicle import VehicleConfig
+from d2a_core.sim.world import WorldConfig
+from d2a_core.tracks.config import TracksConfig
 
 
 class OpponentsConfig(Section):
@@ -20,9 +26,21 @@ class OpponentsConfig(Section):
     pace_max: float = Field(0.95, gt=0, le=1.2, description="fastest replay, as a fraction of the tyre limit")
     line_offset_max_m: float = Field(2.0, ge=0, description="largest lateral offset of a replay's line")
 
+    @model_validator(mode="after")
+    def _ordered(self) -> "OpponentsConfig":
+        if self.pace_min > self.pace_max:
+            raise ValueError(f"pace_min ({self.pace_min}) must not exceed pace_max ({self.pace_max})")
+        return self
+
 
 class Config(Section):
     """Root configuration. Presets (smoke, quick, paper) fill it; defaults are the paper's values."""
 
+    tracks: TracksConfig = TracksConfig()
+    vehicle: VehicleConfig = VehicleConfig()
+    env: EnvConfig = EnvConfig()
     reward: RewardConfig = RewardConfig()
+    world: WorldConfig = WorldConfig()
+    episode_log: EpisodeLogConfig = EpisodeLogConfig()
     opponents: OpponentsConfig = OpponentsConfig()
+    driver: DriverConfig = DriverConfig()

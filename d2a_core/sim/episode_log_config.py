@@ -4,21 +4,23 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field, Strict
+
+from d2a_core.config.section import Section
 
 UnitInterval = Annotated[float, Field(ge=0.0, le=1.0)]
-Colour = tuple[UnitInterval, UnitInterval, UnitInterval, UnitInterval]
+# Strict(False): YAML gives lists, and a colour is naturally written as one
+Colour = Annotated[tuple[UnitInterval, UnitInterval, UnitInterval, UnitInterval], Strict(False)]
 """An RGBA colour, each channel in [0, 1]."""
 
 
-class EpisodeLogConfig(BaseModel):
+class EpisodeLogConfig(Section):
     """How episode logs are written and drawn.
 
     None of these settings change what `read_episode` returns; they only change file size and
     what Foxglove's 3-D panel shows.
     """
 
-    model_config = ConfigDict(extra="forbid")
 
     compression: Literal["zstd", "lz4", "none"] = Field(
         "zstd", description="Chunk compression of the MCAP file."

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import math
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from d2a_core.config.section import Section
 
 
-class TyreConfig(BaseModel):
+class TyreConfig(Section):
     """Magic-formula coefficients of one axle (lateral force per unit normal load)."""
 
-    model_config = ConfigDict(extra="forbid")
 
     b_stiffness: float = Field(10.0, gt=0, description="B: stiffness factor (1/rad)")
     c_shape: float = Field(

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import math
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
+
+from d2a_core.config.section import Section
 
 from d2a_core.sim.tyres import TyreConfig
 
@@ -40,10 +42,9 @@ def _rear_tyre() -> TyreConfig:
     )
 
 
-class VehicleConfig(BaseModel):
+class VehicleConfig(Section):
     """Physical parameters of the car; defaults describe a plausible rear-wheel-drive race car."""
 
-    model_config = ConfigDict(extra="forbid")
 
     mass_kg: float = Field(1250.0, gt=0)
     yaw_inertia_kg_m2: float = Field(1800.0, gt=0)

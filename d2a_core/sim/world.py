@@ -26,13 +26,16 @@ import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-import pybullet as pb
-from pydantic import BaseModel, ConfigDict, Field
+from d2a_core.sim.quiet_pybullet import pb
+from pydantic import Field, Strict
 
-Rgba = tuple[float, float, float, float]
+from d2a_core.config.section import Section
+
+# Strict(False): YAML gives lists for these tuples
+Rgba = Annotated[tuple[float, float, float, float], Strict(False)]
 
 # Collision filter bits (see module docstring).
 _RAY_BIT = 1
@@ -56,10 +59,9 @@ def _default_car_colours() -> list[Rgba]:
     ]
 
 
-class CameraConfig(BaseModel):
+class CameraConfig(Section):
     """Where the render cameras sit relative to the car they follow."""
 
-    model_config = ConfigDict(extra="forbid")
 
     chase_distance_m: float = Field(9.0, gt=0, description="behind the car, along its heading")
     chase_height_m: float = Field(3.5, ge=0, description="above the car's road point")
@@ -71,13 +73,12 @@ class CameraConfig(BaseModel):
     birdseye_heading_up: bool = Field(True, description="True: car heading points up the image")
     near_m: float = Field(0.2, gt=0)
     far_m: float = Field(600.0, gt=0)
-    light_direction: tuple[float, float, float] = (0.4, 0.3, 1.0)
+    light_direction: Annotated[tuple[float, float, float], Strict(False)] = (0.4, 0.3, 1.0)
 
 
-class WorldConfig(BaseModel):
+class WorldConfig(Section):
     """Tunable constants of the pybullet world (geometry details, colours, cameras)."""
 
-    model_config = ConfigDict(extra="forbid")
 
     barrier_thickness_m: float = Field(
         0.6, gt=0, description="walls extend this far away from the road behind their base line"

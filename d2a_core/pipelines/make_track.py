@@ -1,0 +1,156 @@
+"""`make-track`: compile a track source into a track artifact and record opponent replays.
+
+Artifacts written (aliases in brackets):
+
+- kind `track` [`track/<name>`]: `track.npz` (centreline samples, barriers, finish, grid) and the
+  source it was compiled from (`source.yaml` or `source.csv`);
+- kind `replay` [`track/<name>/opponents/<i>`], input: the track: `replay.mcap`, an episode log
+  of the scripted driver at pace `pace_i` on its own line, labelled with pace and finish time.
+
+Everything is deterministic in (source, config, seed), so running it twice gives the same ids.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from d2a_core.artifacts import Store
+from d2a_core.config import ResolvedConfig
+from d2a_core.errors import D2AError
+from d2a_core.sim.episode_log import CarPose, EpisodeRecorder
+from d2a_core.sim.opponents import Lap, drive_lap, line_profile
+from d2a_core.sim.recording import scene_of
+from d2a_core.tracks.sources import TrackSource, load_track_source
+from d2a_core.tracks.track import Track
+
+ProgressFn = Callable[[str, int, int], None]
+LINE_ATTEMPTS = 5
+# the sections a track and its replays depend on; nothing else changes their ids
+TRACK_SECTIONS = ("tracks",)
+REPLAY_SECTIONS = ("tracks", "opponents", "driver", "vehicle", "env", "episode_log")
+
+
+@dataclass
+class OpponentResult:
+    id: str
+    index: int
+    pace: float
+    finish_time_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "index": self.index, "pace": self.pace, "finish_time_s": self.finish_time_s}
+
+
+def write_lap_log(path: Path, track: Track, lap: Lap, dt: float, metadata: dict[str, Any], log_config) -> None:
+    """Record a driven lap as an episode log whose `/state/opponent` channel is a replay."""
+    a = lap.arrays
+    with EpisodeRecorder(path, scene_of(track), metadata, dt, config=log_config) as rec:
+        for k in range(len(a["t"])):
+            pose = CarPose(x=float(a["x"][k]), y=float(a["y"][k]), z=float(a["z"][k]), yaw=float(a["yaw"][k]))
+            rec.log_step(float(a["t"][k]), {"opponent": pose}, {"opponent": {
+                "speed": float(a["speed"][k]), "s": float(a["s"][k]), "e": float(a["e"][k]),
+                "vx": float(a["vx"][k]), "vy": float(a["vy"][k]), "yaw_rate": float(a["yaw_rate"][k]),
+                "slip_front": float(a["slip_front"][k]), "slip_rear": float(a["slip_rear"][k]),
+                "action": {"steer": float(a["steer"][k]), "accel": float(a["accel"][k])},
+            }})
+
+
+def paces(count: int, low: float, high: float) -> list[float]:
+    """Evenly spread paces from low to high (one value when count is 1)."""
+    if count == 1:
+        return [round(0.5 * (low + high), 4)]
+    return [round(float(p), 4) for p in np.linspace(low, high, count)]
+
+
+def make_track(
+    store: Store,
+    source: str,
+    resolved: ResolvedConfig,
+    seed: int,
+    start_m: float | None = None,
+    length_m: float | None = None,
+    name: str | None = None,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
+    """Build the track and its opponents; returns the JSON result of `d2a make-track`."""
+    cfg = resolved.config
+    src: TrackSource = load_track_source(source, start_m=start_m, length_m=length_m, name=name,
+                                         config=cfg.tracks)
+    track = src.track
+    track_config = resolved.section(*TRACK_SECTIONS)
+    with tempfile.TemporaryDirectory(prefix="d2a-make-track-") as tmp:
+        tmp = Path(tmp)
+        npz = tmp / "track.npz"
+        track.save(npz)
+        labels = {"name": track.name, "length_m": round(track.length, 3), "finish_s": track.finish_s,
+                  "elevation_range_m": round(track.elevation_range, 3), "source": src.description}
+        track_art = store.put("track", {"track.npz": npz, f"source{src.suffix}": src.raw},
+                              config=track_config, seed=None, labels=labels)
+        store.tag(track_art.id, f"track/{track.name}")
+
+        opp_cfg = cfg.opponents
+        rng = np.random.default_rng(seed)
+        results: list[OpponentResult] = []
+        env = cfg.env
+        pace_list = paces(opp_cfg.count, opp_cfg.pace_min, opp_cfg.pace_max)
+        for index, pace in enumerate(pace_list):
+            if progress:
+                progress(f"opponent {index + 1}/{len(pace_list)} (pace {pace:.2f})", index, len(pace_list))
+            lap = None
+            for _ in range(LINE_ATTEMPTS):  # a wild line may not be drivable at this pace: draw another
+                line = line_profile(track, rng, opp_cfg.line_offset_max_m, env.car_width_m)
+                lap = drive_lap(track, pace, line, cfg.vehicle, env.dt, env.start_speed_m_s, env.car_width_m,
+                                cfg.driver)
+                if lap.valid:
+                    break
+            else:
+                line = np.zeros(track.n_samples)  # fall back to the centre line
+                lap = drive_lap(track, pace, line, cfg.vehicle, env.dt, env.start_speed_m_s, env.car_width_m,
+                                cfg.driver)
+            if not lap.valid:
+                raise D2AError(
+                    f"opponent {index} at pace {pace} could not complete track {track.name!r}: "
+                    f"finished={lap.finished}, came {max(lap.max_edge_excursion_m, 0):.2f} m past a road edge; "
+                    "lower opponents.pace_max or check the track spec"
+                )
+            meta = {"kind": "opponent-replay", "track": track.name, "track_id": track_art.id, "index": index,
+                    "pace": pace, "finish_time_s": lap.finish_time_s, "seed": seed}
+            log_path = tmp / f"replay{index}.mcap"
+            write_lap_log(log_path, track, lap, env.dt, meta, cfg.episode_log)
+            replay_labels = {"track": track.name, "index": index, "pace": pace,
+                             "finish_time_s": round(lap.finish_time_s, 3),
+                             "line_offset_mean_m": round(float(np.mean(lap.line_offset)), 3),
+                             "max_speed_m_s": round(float(np.max(lap.arrays["speed"])), 3)}
+            art = store.put("replay", {"replay.mcap": log_path}, inputs=[track_art.id],
+                            config=resolved.section(*REPLAY_SECTIONS), seed=seed, labels=replay_labels)
+            store.tag(art.id, f"track/{track.name}/opponents/{index}")
+            results.append(OpponentResult(art.id, index, pace, float(lap.finish_time_s)))
+        if progress:
+            progress("done", len(pace_list), len(pace_list))
+    return {
+        "id": track_art.id,
+        "name": track.name,
+        "alias": f"track/{track.name}",
+        "length_m": round(track.finish_s, 3),
+        "centreline_length_m": round(track.length, 3),
+        "elevation_range_m": round(track.elevation_range, 3),
+        "barriers": len(track.barriers),
+        "opponents": [r.as_dict() for r in results],
+    }
+
+
+def opponents_of(store: Store, track_ref: str) -> list[str]:
+    """Ids of the replays recorded on a track, in index order."""
+    track_id = store.resolve(track_ref)
+    replays = [a for a in store.list("replay") if a.inputs == [track_id]]
+    if not replays:
+        raise D2AError(f"track {track_ref} has no opponent replays in store {store.root}; run d2a make-track")
+    latest: dict[int, Any] = {}
+    for art in replays:  # the same index recorded under several configs: keep the newest
+        latest[art.labels["index"]] = art
+    return [latest[i].id for i in sorted(latest)]
