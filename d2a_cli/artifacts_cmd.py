@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
@@ -161,3 +162,19 @@ def tag(
     """Point ALIAS at an artifact (replacing the alias's old target)."""
     art_id = run.store().tag(ref, alias)
     run.emit({"alias": alias, "id": art_id}, lambda r: out_console.print(f"{alias} -> {art_id}"))
+
+
+@app.command("export")
+@with_common_options
+def export(
+    ref: Annotated[str, typer.Argument(help="Artifact id, unique id prefix or alias.")],
+    directory: Annotated[Path, typer.Argument(help="Directory to copy the artifact's files into.")],
+    *,
+    run: RunContext,
+) -> None:
+    """Copy an artifact's files under their own names (e.g. a replay.mcap to open in Foxglove)."""
+    store = run.store()
+    art_id = store.resolve(ref)
+    paths = store.export(art_id, directory)
+    run.emit({"id": art_id, "files": [str(p) for p in paths]},
+             lambda r: [out_console.print(p, highlight=False) for p in r["files"]])

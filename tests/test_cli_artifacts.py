@@ -88,3 +88,10 @@ def test_gc_dry_run_then_real(cli, store_dir):
     res = cli("artifacts", "gc", "--json", store=store_dir)
     assert res.code == 0 and res.json["artifacts"] == [orphan.id]
     assert len(Store(store_dir).list()) == 3      # the replay survives: the expert's lineage reaches it
+
+
+def test_export_copies_files_under_their_names(cli, store_dir, tmp_path):
+    track, _, _ = _populate(store_dir)
+    res = cli("artifacts", "export", "track/hairpin", str(tmp_path / "out"), "--json", store=store_dir)
+    assert res.code == 0 and res.json["id"] == track.id
+    assert (tmp_path / "out" / "track.npz").read_bytes() == b"track bytes"

@@ -293,6 +293,17 @@ class Store:
     def read_json(self, ref: str, name: str) -> Any:
         return json.loads(self.read_bytes(ref, name))
 
+    def export(self, ref: str, directory: str | os.PathLike[str]) -> list[Path]:
+        """Copy an artifact's files, under their own names, into `directory` (e.g. to open a log)."""
+        art = self.get(ref)
+        out = []
+        for name in sorted(art.files):
+            dst = Path(directory) / name
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(self.path(art.id, name), dst)
+            out.append(dst)
+        return out
+
     def list(self, kind: str | None = None) -> list[Artifact]:
         """Artifacts (optionally of one kind), oldest first."""
         arts = [self.get(i) for i in self._all_ids()]
