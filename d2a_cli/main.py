@@ -11,7 +11,7 @@ from typing import Optional
 
 import typer
 
-from d2a_cli import artifacts_cmd, config_cmd, make_track_cmd
+from d2a_cli import artifacts_cmd, config_cmd, make_track_cmd, train_humans_cmd
 from d2a_cli.common import DeviceOpt, JsonOpt, SeedOpt, StoreOpt, apply_options, current, report_error, wants_json
 from d2a_core.errors import D2AError
 
@@ -25,6 +25,7 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 app.command("make-track")(make_track_cmd.make_track)
+app.command("train-humans")(train_humans_cmd.train_humans)
 app.add_typer(artifacts_cmd.app, name="artifacts")
 app.add_typer(config_cmd.app, name="config")
 

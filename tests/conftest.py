@@ -1,38 +1,12 @@
-"""Shared test helpers: run the real `d2a` CLI in a subprocess and parse its --json output."""
+"""Shared test fixtures."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-@dataclass
-class CliResult:
-    code: int
-    stdout: str
-    stderr: str
-
-    @property
-    def json(self) -> Any:
-        return json.loads(self.stdout)
-
-
-def run_cli(*args: str, store: Path | None = None, timeout: float = 300, env: dict | None = None) -> CliResult:
-    cmd = [sys.executable, "-m", "d2a_cli", *args]
-    if store is not None:
-        cmd += ["--store", str(store)]
-    full_env = dict(os.environ, **(env or {}))
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=full_env, cwd=REPO)
-    return CliResult(proc.returncode, proc.stdout, proc.stderr)
+from d2a_test_helpers import run_cli
 
 
 @pytest.fixture

@@ -16,6 +16,8 @@ from d2a_core.sim.race_env import EnvConfig
 from d2a_core.sim.vehicle import VehicleConfig
 from d2a_core.sim.world import WorldConfig
 from d2a_core.tracks.config import TracksConfig
+from d2a_core.training.config import HumansConfig
+from d2a_core.agents.dreamer.config import DreamerConfig
 
 
 class OpponentsConfig(Section):
@@ -44,3 +46,5 @@ class Config(Section):
     episode_log: EpisodeLogConfig = EpisodeLogConfig()
     opponents: OpponentsConfig = OpponentsConfig()
     driver: DriverConfig = DriverConfig()
+    dreamer: DreamerConfig = DreamerConfig()
+    humans: HumansConfig = HumansConfig()

@@ -1,0 +1,121 @@
+"""Benchmark of full DreamerV3 updates (world model + actor-critic) on synthetic data.
+
+Paper settings (batch 16 x 64, horizon 15, imagination from every replayed state), vector
+observations of size 40 and 2 continuous actions. Prints one JSON object: updates/s after
+warm-up and the world-model and behaviour seconds of each update, per model width.
+
+    python benchmarks/train.py --units 128 512 --updates 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from d2a_core.agents.dreamer import DreamerAgent, DreamerConfig
+
+
+def _fill_replay(agent: DreamerAgent, steps: int, envs: int, seed: int) -> None:
+    """Synthetic transitions: random observations, actions and rewards, episodes of ~100 steps."""
+    rng = np.random.default_rng(seed)
+    for t in range(steps):
+        agent.observe(
+            {
+                "obs": rng.normal(size=(envs, agent.obs_size)).astype(np.float32),
+                "action": rng.uniform(-1, 1, size=(envs, agent.action_size)).astype(np.float32),
+                "reward": rng.normal(size=envs).astype(np.float32),
+                "is_first": rng.random(envs) < (1.0 if t == 0 else 0.01),
+                "is_terminal": rng.random(envs) < 0.002,
+            }
+        )
+
+
+def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.Namespace) -> dict:
+    """Time `updates` full updates of an agent of the given width after `warmup` updates."""
+    config = DreamerConfig(
+        units=units,
+        deter=deter,
+        imag_starts=args.imag_starts,
+        precision=args.precision,
+        device=args.device,
+        prefill_steps=0,
+        replay_capacity=100_000,
+    )
+    agent = DreamerAgent(
+        gym.spaces.Box(-np.inf, np.inf, (args.obs_dim,), np.float32),
+        gym.spaces.Box(-1.0, 1.0, (args.action_dim,), np.float32),
+        config,
+        seed=0,
+    )
+    _fill_replay(agent, steps=400, envs=8, seed=0)
+    params = sum(p.numel() for m in (agent.world_model, agent.behavior.actor, agent.behavior.critic) for p in m.parameters())
+    for _ in range(warmup):
+        agent.train_step()
+    totals, world, behavior = [], [], []
+    for _ in range(updates):
+        start = time.perf_counter()
+        metrics = agent.train_step()
+        if agent.device.type == "cuda":
+            torch.cuda.synchronize()
+        totals.append(time.perf_counter() - start)
+        world.append(metrics["time/world_model_s"])
+        behavior.append(metrics["time/behavior_s"])
+    median = statistics.median(totals)
+    return {
+        "units": units,
+        "deter": deter,
+        "parameters": params,
+        "updates_timed": updates,
+        "updates_per_s": 1.0 / median,
+        "seconds_per_update_median": median,
+        "seconds_per_update_min": min(totals),
+        "seconds_per_update_max": max(totals),
+        "world_model_s_median": statistics.median(world),
+        "behavior_s_median": statistics.median(behavior),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, nargs="+", default=[128, 512], help="MLP widths to time")
+    parser.add_argument("--deter", type=int, default=None, help="GRU size (default: same as units)")
+    parser.add_argument("--updates", type=int, default=5, help="timed updates per width")
+    parser.add_argument("--warmup", type=int, default=2, help="untimed updates first")
+    parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
+    parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32")
+    parser.add_argument("--imag-starts", type=int, default=None, help="imagination starts (default all 1024)")
+    parser.add_argument("--obs-dim", type=int, default=40)
+    parser.add_argument("--action-dim", type=int, default=2)
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    results = [benchmark(u, args.deter or u, args.updates, args.warmup, args) for u in args.units]
+    report = {
+        "benchmark": "dreamer_full_update",
+        "batch": "16x64",
+        "imag_horizon": 15,
+        "imag_starts": args.imag_starts or 1024,
+        "precision": args.precision,
+        "device": args.device,
+        "threads": args.threads,
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "load_average_after": os.getloadavg(),
+        "results": results,
+    }
+    json.dump(report, sys.stdout, indent=2)
+    print()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

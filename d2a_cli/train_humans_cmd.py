@@ -1,0 +1,62 @@
+"""`d2a train-humans`: train a population of synthetic drivers per intent."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, err_console, out_console, with_common_options
+from d2a_core import config as config_mod
+from d2a_core.objectives.rewards import INTENTS
+
+
+@with_common_options
+def train_humans(
+    intent: Annotated[list[str], typer.Option("--intent", help=f"Intent to train, repeatable: {', '.join(INTENTS)}.")],
+    track: Annotated[str, typer.Option("--track", help="Track name, alias or artifact id (built by make-track).")],
+    preset: PresetOpt = "quick",
+    config_file: ConfigFileOpt = None,
+    overrides: SetOpt = None,
+    *,
+    run: RunContext,
+) -> None:
+    """Train DreamerV3 drivers on r_task + r_intent; store checkpoints (imperfect humans) and the expert."""
+    from d2a_core.training.humans import train_population
+
+    unknown = [i for i in intent if i not in INTENTS]
+    if unknown:
+        raise typer.BadParameter(f"unknown intent(s) {', '.join(unknown)}; choose from {', '.join(INTENTS)}",
+                                 param_hint="--intent")
+    resolved = config_mod.load(preset, config_file, overrides or [])
+    store = run.store()
+    populations = []
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console) as bar:
+        for name in intent:
+            task = bar.add_task(f"{name}", total=resolved.config.humans.env_steps, stats="")
+
+            def progress(p: dict[str, Any], task=task) -> None:
+                ret = p["recent_return"]
+                stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  return {ret:.1f}" if ret is not None else "")
+                bar.update(task, completed=p["env_steps"], stats=stats)
+
+            result = train_population(store, track, name, resolved, run.seed, device=run.device, progress=progress)
+            bar.update(task, completed=resolved.config.humans.env_steps,
+                       stats="(stored result)" if result["cached"] else "done")
+            populations.append(result)
+
+    def render(r: dict[str, Any]) -> None:
+        for pop in r["populations"]:
+            table = Table("checkpoint", "env step", "fraction", "progress (m)", "return", "collisions", "ahead",
+                          "left share", title=f"humans/{pop['track']}/{pop['intent']}  expert {pop['expert'][:12]}")
+            for c in pop["checkpoints"]:
+                m = c["metrics"]
+                table.add_row(c["id"][:12], str(c["env_step"]), f"{c['fraction']:.2f}", f"{m['progress_m']:.0f}",
+                              f"{m['return']:.1f}", f"{m['collision']:.2f}", f"{m['ahead_at_end']:.2f}",
+                              f"{m['share_left']:.2f}")
+            out_console.print(table)
+
+    run.emit({"populations": populations}, render)

@@ -1,0 +1,141 @@
+"""Registry of extra world-model heads.
+
+A head reads the model state (a `Latent`: h, and z as sample indices + probabilities; use
+`LatentMLP`, or `latent.dense()` for concat(h, one-hot z)) and is trained with the world model
+on a field of the replayed batch. To add one without touching the world model:
+
+    @register_head("my_kind")
+    class MyHead(WorldModelHead):
+        def __init__(self, config, field="label"):
+            super().__init__(config)
+            self.field = field
+            self.fields = (field,)
+            self.net = latent_mlp(config, out_size=...)
+        def loss(self, latent, batch):        # -> per-step loss (B, T)
+            ...
+        def predict(self, latent):            # -> whatever callers need at run time
+            ...
+
+then list it in the config: `DreamerConfig(extra_heads=[HeadConfig(name="intent",
+kind="my_kind", weight=1.0, options={"field": "intent"})])`. The head's field must be present
+in every transition given to `DreamerAgent.observe` (the replay stores any extra field).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from typing import TypeVar
+
+import torch
+from torch import Tensor, nn
+
+from d2a_core.errors import ConfigError
+
+from .config import DreamerConfig, HeadConfig
+from .distributions import TwoHot
+from .latent import Latent, LatentMLP
+
+HEAD_KINDS: dict[str, type[WorldModelHead]] = {}
+"""Registered head kinds by name."""
+
+
+class WorldModelHead(nn.Module, ABC):
+    """A prediction head on the model state, trained jointly with the world model."""
+
+    #: batch fields the loss reads (checked when a batch lacks them)
+    fields: tuple[str, ...] = ()
+
+    def __init__(self, config: DreamerConfig) -> None:
+        super().__init__()
+
+    @abstractmethod
+    def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
+        """Per-step loss (B, T) for states of leading shape (B, T) and the batch's fields (B, T, ...)."""
+
+    @abstractmethod
+    def predict(self, latent: Latent) -> Tensor:
+        """Run-time prediction for states of any leading shape."""
+
+
+def latent_mlp(config: DreamerConfig, out_size: int, zero_output: bool = False) -> LatentMLP:
+    """A head MLP on the model state with the config's widths."""
+    c = config
+    return LatentMLP(c.deter, c.stoch_flat, c.units, c.layers, c.norm_eps, out_size, zero_output)
+
+
+HeadType = TypeVar("HeadType", bound=type[WorldModelHead])
+
+
+def register_head(kind: str) -> Callable[[HeadType], HeadType]:
+    """Class decorator that makes a head buildable by `kind` from a `HeadConfig`."""
+
+    def decorate(cls: HeadType) -> HeadType:
+        if kind in HEAD_KINDS and HEAD_KINDS[kind] is not cls:
+            raise ValueError(f"head kind {kind!r} is already registered by {HEAD_KINDS[kind].__name__}")
+        HEAD_KINDS[kind] = cls
+        return cls
+
+    return decorate
+
+
+def build_head(spec: HeadConfig, config: DreamerConfig) -> WorldModelHead:
+    """Instantiate the head that `spec` names, passing its options as keyword arguments."""
+    if spec.kind not in HEAD_KINDS:
+        raise ConfigError(
+            f"extra_heads: head {spec.name!r} has unknown kind {spec.kind!r}; registered: {sorted(HEAD_KINDS)}"
+        )
+    try:
+        return HEAD_KINDS[spec.kind](config, **spec.options)
+    except TypeError as error:
+        raise ConfigError(f"extra_heads: head {spec.name!r} ({spec.kind}): bad options {spec.options}: {error}") from error
+
+
+@register_head("categorical")
+class CategoricalHead(WorldModelHead):
+    """Classifier p(y | s) trained by negative log-likelihood on an integer label field.
+    Labels < 0 mean 'unknown' and are left out of the loss (partial labelling)."""
+
+    def __init__(self, config: DreamerConfig, field: str = "label", classes: int = 2) -> None:
+        super().__init__(config)
+        if classes < 2:
+            raise TypeError("classes must be at least 2")
+        self.field = field
+        self.fields = (field,)
+        self.classes = classes
+        self.net = latent_mlp(config, classes)
+
+    def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
+        label = batch[self.field].long()
+        known = label >= 0
+        log_probs = torch.log_softmax(self.net(latent).float(), -1)
+        nll = -log_probs.gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
+        return torch.where(known, nll, torch.zeros_like(nll))
+
+    def predict(self, latent: Latent) -> Tensor:
+        """Class probabilities (..., classes)."""
+        return torch.softmax(self.net(latent).float(), -1)
+
+
+@register_head("twohot")
+class TwoHotHead(WorldModelHead):
+    """Scalar regression p(y | s) with the symlog two-hot code (like the reward head)."""
+
+    def __init__(self, config: DreamerConfig, field: str = "target") -> None:
+        super().__init__(config)
+        self.field = field
+        self.fields = (field,)
+        self.net = latent_mlp(config, config.bins, zero_output=True)
+        self.twohot = TwoHot(config.bins, config.bin_range)
+
+    def _apply(self, fn, recurse=True):  # keep the bins on the module's device
+        result = super()._apply(fn, recurse)
+        self.twohot = self.twohot.to(self.net.out.weight.device)
+        return result
+
+    def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
+        return self.twohot.loss(self.net(latent), batch[self.field].float())
+
+    def predict(self, latent: Latent) -> Tensor:
+        """Predicted value (...)."""
+        return self.twohot.mean(self.net(latent))

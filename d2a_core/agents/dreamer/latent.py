@@ -1,0 +1,233 @@
+"""The model state (h, z) with z kept as sample indices plus probabilities, and the linear layer
+that reads it.
+
+A straight-through one-hot sample z = onehot + probs - sg(probs) has the value of the one-hot
+and the gradient of the probabilities. A linear layer applied to it therefore only needs to sum
+`stoch` rows of its weight table in the forward pass (an embedding-bag, ~30x fewer operations
+than the dense matmul over stoch*classes inputs), while the backward pass sends the dense
+gradient to the probabilities, exactly as the dense formulation does. No one-hot tensor is
+built in the hot loops.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .distributions import straight_through
+from .nets import NormLayer, init_linear_
+
+# Above this many repeated gradient elements, table_gradient loops over latents instead.
+_REPEAT_MAX_ELEMENTS = 1 << 18
+
+
+class Latent(NamedTuple):
+    """Model state of any leading shape: h (..., deter), index (..., stoch) flat indices
+    latent * classes + class of the sampled classes, and probs (..., stoch, classes), the
+    straight-through gradient path of the sample, or None for states without gradient history
+    (saves storing large probability tensors nobody differentiates)."""
+
+    h: Tensor
+    index: Tensor
+    probs: Tensor | None
+
+    def dense(self, classes: int | None = None) -> Tensor:
+        """concat(h, one-hot z) (..., deter + stoch * classes), straight-through if probs exist."""
+        classes = self.probs.shape[-1] if self.probs is not None else classes
+        if classes is None:
+            raise ValueError("dense() of a state without probs needs the number of classes")
+        local = self.index - torch.arange(self.index.shape[-1], device=self.index.device) * classes
+        onehot = F.one_hot(local, classes).to(self.h.dtype)
+        if self.probs is not None:
+            onehot = straight_through(onehot, self.probs)
+        return torch.cat((self.h, onehot.flatten(-2)), -1)
+
+    def reshape(self, *shape: int) -> Latent:
+        """Same state with leading shape `shape`."""
+        return Latent(
+            self.h.reshape(*shape, self.h.shape[-1]),
+            self.index.reshape(*shape, self.index.shape[-1]),
+            None if self.probs is None else self.probs.reshape(*shape, *self.probs.shape[-2:]),
+        )
+
+    def detach(self) -> Latent:
+        """Same state without gradient history (and without probs)."""
+        return Latent(self.h.detach(), self.index, None)
+
+    def select(self, key: int | slice | Tensor) -> Latent:
+        """Index the leading axis."""
+        return Latent(self.h[key], self.index[key], None if self.probs is None else self.probs[key])
+
+    @staticmethod
+    def stack(states: list[Latent], dim: int = 0) -> Latent:
+        """Stack states along a new leading-side axis."""
+        probs = None if any(s.probs is None for s in states) else torch.stack([s.probs for s in states], dim)
+        return Latent(torch.stack([s.h for s in states], dim), torch.stack([s.index for s in states], dim), probs)
+
+    @staticmethod
+    def cat(states: list[Latent]) -> Latent:
+        """Concatenate states along the first axis."""
+        probs = None if any(s.probs is None for s in states) else torch.cat([s.probs for s in states])
+        return Latent(torch.cat([s.h for s in states]), torch.cat([s.index for s in states]), probs)
+
+    @staticmethod
+    def where(condition: Tensor, a: Latent, b: Latent) -> Latent:
+        """Per-row choice between two states with probs; condition (N,) bool."""
+        c = condition.reshape(-1, 1)
+        return Latent(
+            torch.where(c, a.h, b.h),
+            torch.where(c, a.index, b.index),
+            torch.where(c.unsqueeze(-1), a.probs, b.probs),
+        )
+
+
+class _OneHotMatmul(torch.autograd.Function):
+    """out = onehot(index) @ joined, where `joined` is the detached column-concatenation of
+    `tables`: the forward is one embedding-bag, the gradient of the one-hot goes to `probs`
+    through one matmul, and each table that needs one gets its own gradient."""
+
+    @staticmethod
+    def forward(ctx, index: Tensor, probs: Tensor, joined: Tensor, *tables: Tensor) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(index, joined)
+        ctx.sizes = [table.shape[1] for table in tables]
+        ctx.probs_shape, ctx.probs_dtype = probs.shape, probs.dtype
+        return F.embedding_bag(index, joined, mode="sum")
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):  # type: ignore[override]
+        index, joined = ctx.saved_tensors
+        grad = grad.to(joined.dtype)
+        grad_probs = None
+        if ctx.needs_input_grad[1]:
+            grad_probs = (grad @ joined.t()).to(ctx.probs_dtype)
+        grad_tables: list[Tensor | None] = []
+        for k, piece in enumerate(grad.split(ctx.sizes, 1)):
+            grad_tables.append(table_gradient(index, joined.shape[0], piece) if ctx.needs_input_grad[3 + k] else None)
+        return (None, grad_probs, None, *grad_tables)
+
+
+def table_gradient(index: Tensor, rows: int, grad: Tensor) -> Tensor:
+    """Gradient of an embedding-bag's table: each row of `grad` (M, out) summed into the `stoch`
+    table rows its bag used (index (M, stoch)). Small batches use one index_add over repeated
+    rows; large ones one index_add per latent, which beat both the embedding-bag backward and
+    a dense one-hot matmul on a 2-core AVX-512 CPU."""
+    out = torch.zeros(rows, grad.shape[1], dtype=torch.float32, device=grad.device)
+    grad = grad.float().contiguous()
+    stoch = index.shape[1]
+    if grad.numel() * stoch <= _REPEAT_MAX_ELEMENTS:
+        return out.index_add_(0, index.reshape(-1), grad.repeat_interleave(stoch, 0))
+    for k in range(stoch):
+        out.index_add_(0, index[:, k], grad)
+    return out
+
+
+class Readout:
+    """First layers of several LatentMLPs (plus the z parts of other OneHotLinears, e.g. the
+    RSSM's input layer) evaluated together on the same states: one matmul for all h parts and
+    one embedding-bag for all z parts (one backward matmul to the probabilities). Weights are
+    joined once at construction, so build one per use (weights change every update)."""
+
+    def __init__(self, mlps: list[LatentMLP], extra_tables: list[Tensor] | None = None) -> None:
+        self.count = len(mlps)
+        self.tables = [mlp.first.table for mlp in mlps] + (extra_tables or [])
+        device = self.tables[0].device
+        with torch.no_grad():
+            self.joined = _compute_dtype(torch.cat(self.tables, 1) if len(self.tables) > 1 else self.tables[0], device)
+        self.table_sizes = [table.shape[1] for table in self.tables]
+        # The h parts are joined separately for weights that need gradients and those that do
+        # not (e.g. the frozen world model's heads in imagination): one joined weight would get
+        # a full weight gradient, most of it thrown away.
+        weights = [mlp.first.dense_weight for mlp in mlps]
+        self.groups = []
+        for wanted in (True, False):
+            members = [k for k, w in enumerate(weights) if w.requires_grad == wanted]
+            if members:
+                joined = torch.cat([weights[k] for k in members], 0) if len(members) > 1 else weights[members[0]]
+                self.groups.append((members, joined, [weights[k].shape[0] for k in members]))
+
+    def __call__(self, latent: Latent) -> list[Tensor]:
+        """Outputs for each MLP's first layer (..., units), then each extra table's z part."""
+        lead = latent.index.shape[:-1]
+        index = latent.index.reshape(-1, latent.index.shape[-1])
+        probs = _flat_probs(latent.probs, index)
+        sparse = _OneHotMatmul.apply(index, probs, self.joined, *self.tables)
+        sparse = sparse.reshape(*lead, sparse.shape[-1]).split(self.table_sizes, -1)
+        dense: list[Tensor | None] = [None] * self.count
+        for members, weight, sizes in self.groups:
+            for k, part in zip(members, F.linear(latent.h, weight).split(sizes, -1)):
+                dense[k] = part
+        return [d + s for d, s in zip(dense, sparse)] + list(sparse[self.count :])
+
+
+def _flat_probs(probs: Tensor | None, flat_index: Tensor) -> Tensor:
+    """Probabilities as (rows, stoch*classes), or an empty stand-in when there are none."""
+    if probs is None:
+        return flat_index.new_empty((0,), dtype=torch.float32)
+    return probs.reshape(flat_index.shape[0], -1)
+
+
+def _compute_dtype(table: Tensor, device: torch.device) -> Tensor:
+    if torch.is_autocast_enabled(device.type):
+        return table.to(torch.get_autocast_dtype(device.type))
+    return table
+
+
+class OneHotLinear(nn.Module):
+    """Linear layer (no bias) on concat(dense, one-hot z) where z is given as (index, probs).
+
+    The dense part is a normal weight; the one-hot part is a table of stoch*classes rows.
+    Initialised like one dense layer of the full input size."""
+
+    def __init__(self, dense_size: int, onehot_size: int, out_size: int) -> None:
+        super().__init__()
+        fan_in = dense_size + onehot_size
+        std = math.sqrt(2.0 / (fan_in + out_size)) / 0.87962566103423978
+        self.dense_weight = nn.Parameter(torch.empty(out_size, dense_size))
+        self.table = nn.Parameter(torch.empty(onehot_size, out_size))
+        for weight in (self.dense_weight, self.table):
+            nn.init.trunc_normal_(weight, std=std, a=-2.0 * std, b=2.0 * std)
+
+    def forward(self, dense: Tensor, index: Tensor, probs: Tensor | None) -> Tensor:
+        lead = index.shape[:-1]
+        flat_index = index.reshape(-1, index.shape[-1])
+        flat_probs = _flat_probs(probs, flat_index)
+        joined = _compute_dtype(self.table.detach(), index.device)
+        sparse = _OneHotMatmul.apply(flat_index, flat_probs, joined, self.table)
+        return F.linear(dense, self.dense_weight) + sparse.reshape(*lead, sparse.shape[-1])
+
+
+class LatentMLP(nn.Module):
+    """DreamerV3 MLP (Linear -> LayerNorm -> SiLU, `layers` times, then a linear output) that
+    reads a `Latent`: the first layer is a OneHotLinear over (h, z)."""
+
+    def __init__(
+        self,
+        deter: int,
+        stoch_flat: int,
+        units: int,
+        layers: int,
+        eps: float,
+        out_size: int,
+        zero_output: bool = False,
+    ) -> None:
+        super().__init__()
+        self.first = OneHotLinear(deter, stoch_flat, units)
+        self.first_norm = nn.LayerNorm(units, eps=eps)
+        self.hidden = nn.Sequential(*(NormLayer(units, units, eps) for _ in range(layers - 1)))
+        self.out = init_linear_(nn.Linear(units, out_size), zero=zero_output)
+
+    def forward(self, latent: Latent) -> Tensor:
+        return self.finish(self.first(latent.h, latent.index, latent.probs))
+
+    def finish(self, first_pre: Tensor) -> Tensor:
+        """The rest of the MLP from the first layer's linear output."""
+        return self.out(self.hidden(F.silu(self.first_norm(first_pre))))
+
+
+def first_layers(latent: Latent, mlps: list[LatentMLP]) -> list[Tensor]:
+    """First-layer outputs of several LatentMLPs on the same states (see `Readout`)."""
+    return Readout(mlps)(latent)

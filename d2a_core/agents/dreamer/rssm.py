@@ -1,0 +1,203 @@
+"""Recurrent state-space model (DreamerV3): a LayerNorm GRU deterministic state `h` and a
+stochastic state `z` of `stoch` categoricals with `classes` classes each (1 % unimix,
+straight-through samples).
+
+Speed notes: z is carried as sample indices plus probabilities (see `latent.py`); inputs that
+do not depend on the recurrence (observation embeddings) are projected for the whole sequence
+in one matmul before the time loop; random numbers are drawn once per call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .config import DreamerConfig
+from .distributions import unimix_probs
+from .latent import Latent, LatentMLP, OneHotLinear, Readout
+from .nets import NormLayer, init_linear_
+
+ImaginationPolicy = Callable[[Latent, list[Tensor]], tuple[Tensor, dict[str, Tensor]]]
+"""Maps a state of leading shape (N,) and the first-layer outputs of the readout MLPs at that
+state (see `RSSM.imagine`) to (action (N, A), extras to stack over time)."""
+
+
+@dataclass
+class Observed:
+    """Result of filtering a batch of sequences: posterior states and both sets of logits."""
+
+    latent: Latent  # leading shape (B, T)
+    post_logits: Tensor  # (B, T, stoch, classes)
+    prior_logits: Tensor  # (B, T, stoch, classes)
+
+
+@dataclass
+class Imagined:
+    """A rollout of the prior: H+1 states (the start included), H actions and policy extras.
+    States and readouts stay per step (not stacked): stacked tensors of this size would
+    exceed the allocator's mmap threshold and pay page faults on every use (see behavior.py)."""
+
+    states: list[Latent]  # H+1 states of leading shape (N,)
+    actions: Tensor  # (H, N, A)
+    extras: dict[str, Tensor]  # each (H, N, ...)
+    readouts: list[list[Tensor]]  # per state: the first-layer outputs (N, units) of each readout MLP
+
+    @property
+    def latent(self) -> Latent:
+        """All states stacked, leading shape (H+1, N)."""
+        return Latent.stack(self.states)
+
+
+def sample_index(probs: Tensor, uniform: Tensor, offsets: Tensor) -> Tensor:
+    """Flat sample indices (..., stoch) of categoricals probs (..., stoch, classes) by inverse
+    CDF with uniform (..., stoch, 1); `offsets` = arange(stoch) * classes."""
+    cdf = probs.detach().cumsum(-1)
+    local = (cdf < uniform).sum(-1).clamp_(max=probs.shape[-1] - 1)
+    return local + offsets
+
+
+class RSSM(nn.Module):
+    """Sequence model h_t = f(h_{t-1}, z_{t-1}, a_{t-1}), prior p(z_t | h_t), posterior q(z_t | h_t, x_t)."""
+
+    def __init__(self, config: DreamerConfig, embed_size: int, action_size: int) -> None:
+        super().__init__()
+        c = config
+        self.stoch, self.classes, self.deter, self.unimix = c.stoch, c.classes, c.deter, c.unimix
+        self.img_in = OneHotLinear(action_size, c.stoch_flat, c.units)
+        self.img_in_norm = nn.LayerNorm(c.units, eps=c.norm_eps)
+        self.gru_linear = init_linear_(nn.Linear(c.units + c.deter, 3 * c.deter, bias=False))
+        self.gru_norm = nn.LayerNorm(3 * c.deter, eps=c.norm_eps)
+        self.img_out = NormLayer(c.deter, c.units, c.norm_eps)
+        self.prior_head = init_linear_(nn.Linear(c.units, c.stoch_flat))
+        self.obs_out = NormLayer(c.deter + embed_size, c.units, c.norm_eps)
+        self.post_head = init_linear_(nn.Linear(c.units, c.stoch_flat))
+        # tanh(0) = 0: a learned initial state starts where a zero state would.
+        self.initial_deter = nn.Parameter(torch.zeros(c.deter), requires_grad=c.learned_initial_state)
+        self.register_buffer("offsets", torch.arange(c.stoch) * c.classes, persistent=False)
+
+    # --- pieces
+
+    def initial(self, batch_size: int) -> Latent:
+        """Initial state: h = tanh(learned vector), z = mode of the prior at h (no gradient)."""
+        h = torch.tanh(self.initial_deter).unsqueeze(0)
+        probs = unimix_probs(self.prior_logits(h), self.unimix).detach()
+        index = probs.argmax(-1) + self.offsets
+        return Latent(
+            h.expand(batch_size, -1), index.expand(batch_size, -1), probs.expand(batch_size, -1, -1)
+        )
+
+    def gru(self, x: Tensor, h: Tensor) -> Tensor:
+        """LayerNorm GRU cell with DreamerV3's update-gate bias of -1 (favours keeping h)."""
+        parts = self.gru_norm(F.linear(torch.cat((x, h), -1), self.gru_linear.weight)).to(h.dtype)
+        reset, cand, update = parts.chunk(3, -1)
+        cand = torch.tanh(torch.sigmoid(reset) * cand)
+        update = torch.sigmoid(update - 1.0)
+        return torch.lerp(h, cand, update)
+
+    def step(self, prev: Latent, action: Tensor, z_part: Tensor | None = None) -> Tensor:
+        """Next deterministic state from the previous state and the action taken there.
+        `z_part` is the input layer's output for prev's z if already computed (fused readout)."""
+        if z_part is None:
+            pre = self.img_in(action, prev.index, prev.probs)
+        else:
+            pre = F.linear(action, self.img_in.dense_weight) + z_part
+        return self.gru(F.silu(self.img_in_norm(pre)), prev.h)
+
+    def prior_logits(self, h: Tensor) -> Tensor:
+        """Prior logits (..., stoch, classes) from the deterministic state."""
+        return self.prior_head(self.img_out(h)).unflatten(-1, (self.stoch, self.classes))
+
+    def posterior_logits(self, h: Tensor, embed: Tensor) -> Tensor:
+        """Posterior logits (..., stoch, classes) from h and the observation embedding."""
+        logits = self.post_head(self.obs_out(torch.cat((h, embed), -1)))
+        return logits.unflatten(-1, (self.stoch, self.classes))
+
+    def sample(self, h: Tensor, logits: Tensor, uniform: Tensor) -> Latent:
+        """State with z sampled (straight-through) from `logits`."""
+        probs = unimix_probs(logits, self.unimix)
+        return Latent(h, sample_index(probs, uniform, self.offsets), probs)
+
+    def uniform(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> Tensor:
+        """Random numbers for sampling states of leading shape `shape`."""
+        return torch.rand((*shape, self.stoch, 1), generator=generator, device=device)
+
+    # --- sequences
+
+    def observe(
+        self,
+        embed: Tensor,
+        prev_actions: Tensor,
+        is_first: Tensor,
+        generator: torch.Generator | None,
+        state: Latent | None = None,
+    ) -> Observed:
+        """Filter sequences: embed (B, T, E), prev_actions (B, T, A) (the action before each
+        observation), is_first (B, T) bool. Where is_first, the state and previous action are
+        reset to the initial state and zero before the step."""
+        batch, length = embed.shape[:2]
+        initial = self.initial(batch)
+        latent = state if state is not None else initial
+        prev_actions = prev_actions.masked_fill(is_first.unsqueeze(-1), 0.0)
+        w_obs = self.obs_out.linear.weight
+        embed_pre = F.linear(embed, w_obs[:, self.deter :])
+        w_obs_h = w_obs[:, : self.deter]
+        uniform = self.uniform((length, batch), generator, embed.device)
+        resets = is_first.any(0).tolist()
+        states, logits_list = [], []
+        for t in range(length):
+            if resets[t]:
+                latent = Latent.where(is_first[:, t], initial, latent)
+            h = self.step(latent, prev_actions[:, t])
+            hidden = self.obs_out.forward_preactivation(F.linear(h, w_obs_h) + embed_pre[:, t])
+            logits = self.post_head(hidden).unflatten(-1, (self.stoch, self.classes))
+            latent = self.sample(h, logits, uniform[t])
+            states.append(latent)
+            logits_list.append(logits)
+        stacked = Latent.stack(states, 1)
+        return Observed(
+            latent=stacked,
+            post_logits=torch.stack(logits_list, 1),
+            prior_logits=self.prior_logits(stacked.h),
+        )
+
+    def imagine(
+        self,
+        policy: ImaginationPolicy,
+        start: Latent,
+        horizon: int,
+        generator: torch.Generator | None,
+        readouts: list[LatentMLP] | None = None,
+    ) -> Imagined:
+        """Roll the prior forward `horizon` steps from `start` (leading shape (N,)) with actions
+        from `policy`. Gradients flow through states, straight-through samples and actions.
+
+        `readouts` are MLPs that read every imagined state (e.g. actor, reward, critic): their
+        first layers are evaluated inside the loop, fused with each other and with the RSSM's
+        input layer (one matmul per state for all of them, forward and backward, on tensors
+        that stay in cache), and returned stacked for the caller to finish the MLPs."""
+        readouts = readouts or []
+        fused = Readout(readouts, [self.img_in.table]) if readouts else None
+        last = Readout(readouts) if readouts else None
+        uniform = self.uniform((horizon, start.h.shape[0]), generator, start.h.device)
+        latent = start
+        states, actions, extras, pres = [start], [], [], []
+        for t in range(horizon + 1):
+            z_part = None
+            if readouts:
+                outs = (fused if t < horizon else last)(latent)
+                pres.append(outs[: len(readouts)])
+                z_part = outs[len(readouts)] if t < horizon else None
+            if t == horizon:
+                break
+            action, extra = policy(latent, pres[-1] if readouts else [])
+            h = self.step(latent, action, z_part)
+            latent = self.sample(h, self.prior_logits(h), uniform[t])
+            states.append(latent)
+            actions.append(action)
+            extras.append(extra)
+        stacked_extras = {key: torch.stack([e[key] for e in extras]) for key in (extras[0] if extras else {})}
+        return Imagined(states=states, actions=torch.stack(actions), extras=stacked_extras, readouts=pres)

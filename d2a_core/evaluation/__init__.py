@@ -1,0 +1,1 @@
+"""Evaluation: per-episode metrics from env infos, aggregation, evaluation runs."""

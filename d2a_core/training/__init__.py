@@ -1,0 +1,1 @@
+"""Training runs: the human population (FCP) and, later, the assistant."""

@@ -1,0 +1,19 @@
+"""Config sections of the training runs (kept free of torch so the CLI starts fast)."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from d2a_core.config.section import Section
+
+
+class HumansConfig(Section):
+    """The population run: length, parallel envs, checkpoint schedule, evaluation."""
+
+    env_steps: int = Field(2_000_000, gt=0, description="environment steps per intent (all envs together)")
+    num_envs: int = Field(4, ge=1, le=64, description="envs stepped in parallel during collection")
+    checkpoints: int = Field(10, ge=1, description="evenly spaced checkpoints; the last is the expert")
+    eval_episodes: int = Field(10, ge=1, description="unassisted evaluation episodes per checkpoint")
+    eval_envs: int = Field(4, ge=1, le=64)
+    log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
+    torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")

@@ -1,0 +1,220 @@
+"""`train-humans`: a fictitious co-play population of DreamerV3 drivers per intent.
+
+For one (track, intent) the agent trains on `r^H = r^task + r^intent` against the track's opponent
+replays. At `checkpoints` evenly spaced points of the run it is evaluated unassisted and stored
+as an artifact (kind `human`): the partially trained ones are the imperfect humans, the last one
+the expert. Then a `population` artifact lists them all with the training curve.
+
+Aliases: `humans/<track>/<intent>` (the population) and `humans/<track>/<intent>/expert`.
+
+Resume: after each checkpoint the full training state (agent, replay, counters, curve) is saved
+in `<store>/runs/<run key>/state.pt`; the same command after a crash continues from there. The
+run key hashes everything the result depends on (track, replays, intent, config, seed), and a
+finished run with the same key is returned from the store instead of training again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from d2a_core.agents.dreamer.agent import DreamerAgent
+from d2a_core.agents.dreamer.config import DreamerConfig
+from d2a_core.artifacts import Store, canonical_json
+from d2a_core.config import ResolvedConfig
+from d2a_core.errors import NotFoundError, TrainingError, UsageError
+from d2a_core.evaluation.metrics import aggregate
+from d2a_core.objectives.rewards import INTENTS
+from d2a_core.pipelines.make_track import opponents_of
+from d2a_core.sim.race_env import RaceEnv
+from d2a_core.sim.replay import OpponentReplay
+from d2a_core.tracks.track import Track
+from d2a_core.training.config import HumansConfig
+from d2a_core.training.rollout import Collector, evaluate
+
+# config sections a population depends on (changing anything else does not retrain)
+SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
+RUN_FORMAT = 1
+
+
+ProgressFn = Callable[[dict[str, Any]], None]
+
+
+@dataclass
+class TrackBundle:
+    """A track and its opponent replays, loaded from the store."""
+
+    track_id: str
+    track: Track
+    replay_ids: list[str]
+    replays: list[OpponentReplay]
+
+
+def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
+    """A track by id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
+    try:
+        track_id = store.resolve(ref)
+    except NotFoundError:
+        if "/" in ref:
+            raise
+        try:
+            track_id = store.resolve(f"track/{ref}")
+        except NotFoundError:
+            raise NotFoundError(f"no track {ref!r} in store {store.root}; build it with: d2a make-track {ref}") from None
+    art = store.get(track_id)
+    if art.kind != "track":
+        raise UsageError(f"{ref} is a {art.kind} artifact, not a track")
+    track = Track.load(store.path(track_id, "track.npz"))
+    replay_ids = opponents_of(store, track_id)
+    replays = [OpponentReplay.from_log(store.path(rid, "replay.mcap"), "opponent", dt=dt) for rid in replay_ids]
+    return TrackBundle(track_id, track, replay_ids, replays)
+
+
+def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int) -> str:
+    identity = {"format": RUN_FORMAT, "kind": "humans", "track": bundle.track_id, "replays": bundle.replay_ids,
+                "intent": intent, "config": config, "seed": seed}
+    return hashlib.sha256(canonical_json(identity)).hexdigest()
+
+
+def _save_atomic(obj: Any, path: Path) -> None:
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        torch.save(obj, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _agent_bytes(agent: DreamerAgent) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(agent.state_dict(include_replay=False), buffer)
+    return buffer.getvalue()
+
+
+def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu") -> DreamerAgent:
+    """A stored human checkpoint as a ready-to-act agent (on `device`)."""
+    art = store.get(ref)
+    if art.kind != "human":
+        raise UsageError(f"{ref} is a {art.kind} artifact, not a human checkpoint")
+    state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
+    config = DreamerConfig.model_validate({**state["config"], "device": device})
+    agent = DreamerAgent(obs_space, act_space, config, seed=0)
+    agent.load_state_dict(state)
+    return agent
+
+
+def train_population(
+    store: Store,
+    track_ref: str,
+    intent: str,
+    resolved: ResolvedConfig,
+    seed: int,
+    device: str = "cpu",
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
+    """Train (or resume, or look up) one intent's population; returns its JSON summary."""
+    if intent not in INTENTS:
+        raise UsageError(f"unknown intent {intent!r}; choose from {', '.join(INTENTS)}")
+    cfg = resolved.config
+    hc: HumansConfig = cfg.humans
+    bundle = load_track_bundle(store, track_ref, cfg.env.dt)
+    config_record = resolved.section(*SECTIONS)
+    key = _run_key(bundle, intent, config_record, seed)
+    done = [a for a in store.list("population") if a.labels.get("run_key") == key]
+    if done:
+        result = store.read_json(done[-1].id, "population.json")
+        return dict(result, id=done[-1].id, resumed_from_env_step=None, cached=True)
+
+    if hc.torch_threads:
+        torch.set_num_threads(hc.torch_threads)
+    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device})
+
+    def make_env() -> RaceEnv:
+        return RaceEnv(bundle.track, bundle.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
+                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+
+    envs = [make_env() for _ in range(hc.num_envs)]
+    agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)
+    run_dir = store.root / "runs" / key
+    run_dir.mkdir(parents=True, exist_ok=True)
+    state_path = run_dir / "state.pt"
+    env_steps, checkpoints, curve, resumed_from = 0, [], [], None
+    if state_path.is_file():
+        saved = torch.load(state_path, map_location=device, weights_only=False)
+        agent.load_state_dict(saved["agent"])
+        env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        resumed_from = env_steps
+    # resets after a resume use fresh seeds so the continued run does not replay old episodes
+    collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
+    schedule = [round(hc.env_steps * (k + 1) / hc.checkpoints) for k in range(hc.checkpoints)]
+    pending = [s for s in schedule if s > env_steps]
+    tags = {"track": bundle.track.name, "intent": intent}
+    recent: deque[dict[str, float]] = deque(maxlen=20)
+    last_metrics: dict[str, float] = {}
+    next_log = (env_steps // hc.log_every + 1) * hc.log_every
+    start_time, start_updates = time.monotonic(), agent.updates_done
+    try:
+        while pending:
+            recent.extend(collector.step(explore=True, learn=True))
+            env_steps += collector.n
+            for _ in range(agent.updates_due(env_steps)):
+                last_metrics = agent.train_step()
+            if env_steps >= next_log or env_steps >= pending[0]:
+                row = {"env_step": env_steps, "updates": agent.updates_done,
+                       **{f"episode/{k}": v for k, v in aggregate(list(recent)).items()},
+                       **{k: round(v, 6) for k, v in last_metrics.items()}}
+                curve.append(row)
+                next_log = (env_steps // hc.log_every + 1) * hc.log_every
+            if progress:
+                elapsed = max(time.monotonic() - start_time, 1e-9)
+                progress({"intent": intent, "env_steps": env_steps, "total": hc.env_steps,
+                          "updates_per_s": (agent.updates_done - start_updates) / elapsed,
+                          "recent_return": float(np.mean([e["return"] for e in recent])) if recent else None})
+            if env_steps >= pending[0]:
+                pending.pop(0)
+                checkpoints.append(_store_checkpoint(store, agent, bundle, make_env, intent, env_steps, hc,
+                                                     config_record, seed, tags))
+                _save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                              "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve}, state_path)
+    except TrainingError as exc:
+        last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
+            if checkpoints else ""
+        raise TrainingError(f"{intent} training stopped at env step {env_steps}: {exc}{last}") from None
+    finally:
+        for env in envs:
+            env.close()
+
+    expert = checkpoints[-1]
+    result = {"intent": intent, "track": bundle.track.name, "track_id": bundle.track_id, "seed": seed,
+              "expert": expert["id"], "checkpoints": checkpoints, "resumed_from_env_step": resumed_from}
+    with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
+                      labels={**tags, "run_key": key}) as writer:
+        writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
+        writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
+    population = writer.artifact
+    store.tag(population.id, f"humans/{bundle.track.name}/{intent}")
+    store.tag(expert["id"], f"humans/{bundle.track.name}/{intent}/expert")
+    return dict(result, id=population.id, cached=False)
+
+
+def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, make_env, intent: str,
+                      env_steps: int, hc: HumansConfig, config_record: dict[str, Any], seed: int,
+                      tags: dict[str, str]) -> dict[str, Any]:
+    episodes = evaluate(agent, make_env, hc.eval_episodes, seed=10_000_019 + seed, n_envs=hc.eval_envs)
+    metrics = aggregate(episodes)
+    fraction = round(env_steps / hc.env_steps, 6)
+    with store.create("human", inputs=[bundle.track_id, *bundle.replay_ids], config=config_record, seed=seed,
+                      labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
+        writer.add_bytes("agent.pt", _agent_bytes(agent))
+        writer.add_json("eval.json", {"metrics": metrics, "episodes": episodes})
+    return {"id": writer.artifact.id, "env_step": env_steps, "fraction": fraction, "metrics": metrics}

@@ -1,0 +1,100 @@
+"""`d2a train-humans` through the CLI: checkpoints as artifacts, aliases, idempotence, resume."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from d2a_core.artifacts import Store
+
+from d2a_test_helpers import REPO, run_cli
+
+SMOKE = ("--preset", "smoke")
+
+
+@pytest.fixture(scope="module")
+def track_store(tmp_path_factory):
+    store = tmp_path_factory.mktemp("humans") / "store"
+    res = run_cli("make-track", "straightaway", *SMOKE, "--json", store=store)
+    assert res.code == 0, res.stderr
+    return store
+
+
+def test_train_humans_population_and_idempotence(cli, track_store):
+    res = cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json",
+              store=track_store)
+    assert res.code == 0, res.stderr
+    pops = res.json["populations"]
+    assert [p["intent"] for p in pops] == ["pass", "stay"]
+    store = Store(track_store)
+    track_id = store.resolve("track/straightaway")
+    for pop in pops:
+        assert pop["track"] == "straightaway" and not pop["cached"]
+        assert [c["fraction"] for c in pop["checkpoints"]] == [0.5, 1.0]
+        assert [c["env_step"] for c in pop["checkpoints"]] == [120, 240]
+        assert pop["expert"] == pop["checkpoints"][-1]["id"]
+        for c in pop["checkpoints"]:
+            m = c["metrics"]
+            assert m["episodes"] == 2
+            assert {"progress_m", "return", "collision", "mean_speed_m_s", "overtakes", "share_left"} <= set(m)
+            art = store.get(c["id"])
+            assert art.kind == "human" and art.labels["intent"] == pop["intent"]
+            assert art.inputs[0] == track_id and len(art.inputs) == 3  # track + 2 opponent replays
+            assert {"agent.pt", "eval.json"} <= set(art.files)
+        assert store.resolve(f"humans/straightaway/{pop['intent']}") == pop["id"]
+        assert store.resolve(f"humans/straightaway/{pop['intent']}/expert") == pop["expert"]
+        curve = store.read_bytes(pop["id"], "curve.jsonl").decode().splitlines()
+        assert len(curve) >= 2
+    # the same command again returns the stored result instead of training
+    start = time.monotonic()
+    again = cli("train-humans", "--intent", "pass", "--track", "track/straightaway", *SMOKE, "--json",
+                store=track_store)
+    assert again.code == 0 and again.json["populations"][0]["cached"]
+    assert again.json["populations"][0]["id"] == pops[0]["id"]
+    assert time.monotonic() - start < 30
+
+
+def test_resume_after_sigkill(cli, track_store):
+    args = ["train-humans", "--intent", "left", "--track", "straightaway", *SMOKE,
+            "--set", "humans.env_steps=480", "--set", "humans.checkpoints=4", "--json"]
+    cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(track_store)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    store = Store(track_store)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        humans = [a for a in store.list("human") if a.labels["intent"] == "left"]
+        if humans:
+            break
+        time.sleep(0.2)
+    else:
+        proc.kill()
+        pytest.fail("no checkpoint appeared")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    first = humans[0]
+    res = cli(*args, store=track_store)
+    assert res.code == 0, res.stderr
+    pop = res.json["populations"][0]
+    assert pop["resumed_from_env_step"] is not None and pop["resumed_from_env_step"] >= first.labels["env_step"]
+    assert [c["env_step"] for c in pop["checkpoints"]] == [120, 240, 360, 480]
+    assert pop["checkpoints"][0]["id"] == first.id
+    assert store.verify() == []
+
+
+def test_non_finite_loss_stops_with_a_clear_error(cli, track_store):
+    res = cli("train-humans", "--intent", "right", "--track", "straightaway", *SMOKE,
+              "--set", "dreamer.model_lr=1e30", "--set", "dreamer.actor_lr=1e30", "--json", store=track_store)
+    assert res.code == 1
+    assert "non-finite" in res.json["error"]["message"]
+    assert not [a for a in Store(track_store).list("population") if a.labels["intent"] == "right"]
+
+
+def test_train_humans_usage_errors(cli, track_store, tmp_path):
+    res = cli("train-humans", "--intent", "overtake", "--track", "straightaway", *SMOKE, "--json", store=track_store)
+    assert res.code == 2 and "overtake" in res.json["error"]["message"]
+    res = cli("train-humans", "--intent", "pass", "--track", "monza", *SMOKE, "--json", store=track_store)
+    assert res.code == 2 and "make-track monza" in res.json["error"]["message"]
