@@ -38,10 +38,16 @@ def train_humans(
         for name in intent:
             task = bar.add_task(f"{name}", total=resolved.config.humans.env_steps, stats="")
 
-            def progress(p: dict[str, Any], task=task) -> None:
+            marks = {"next": 0.0}
+
+            def progress(p: dict[str, Any], task=task, marks=marks) -> None:
                 ret = p["recent_return"]
                 stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  return {ret:.1f}" if ret is not None else "")
                 bar.update(task, completed=p["env_steps"], stats=stats)
+                done = p["env_steps"] / p["total"]
+                if not err_console.is_terminal and done >= marks["next"]:  # logs, not a live bar
+                    err_console.print(f"{p['intent']}: {p['env_steps']}/{p['total']} env steps, {stats}")
+                    marks["next"] += 0.05
 
             result = train_population(store, track, name, resolved, run.seed, device=run.device, progress=progress)
             bar.update(task, completed=resolved.config.humans.env_steps,

@@ -25,9 +25,12 @@ INTENTS = ("pass", "stay", "left", "right")
 class RewardConfig(Section):
     """Task and intent reward constants (paper section 3 and appendix 'Human Objectives')."""
 
-    collision: float = Field(-10.0, le=0, description="r^collision, paid once when a collision ends the episode")
-    bounds: float = Field(-10.0, le=0, description="r^bounds, paid once when the car leaves the track too far")
-    finish: float = Field(10.0, ge=0, description="r^finish, paid once when the finish line is reached")
+    # The paper gives only the signs of the task terms. Their size must outweigh what the dense
+    # pass term can cost: with a small penalty, a driver falling behind learns that crashing
+    # early (ending the stream of negative passing reward) is its best option.
+    collision: float = Field(-100.0, le=0, description="r^collision, paid once when a collision ends the episode")
+    bounds: float = Field(-100.0, le=0, description="r^bounds, paid once when the car leaves the track too far")
+    finish: float = Field(100.0, ge=0, description="r^finish, paid once when the finish line is reached")
     c_pass: float = Field(10.0, description="scale of the pass term on ds_t - ds_{t-1}")
     pass_window_m: float = Field(800.0, gt=0, description="s_high = -s_low of the pass indicator")
     c_stay: float = Field(-2.0, description="scale of the stay term on ds_t - ds_{t-1}")

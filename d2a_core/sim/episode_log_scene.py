@@ -28,6 +28,7 @@ from foxglove.messages import (
 )
 
 from d2a_core.sim.episode_log_config import Colour, EpisodeLogConfig
+from d2a_core.sim.rotation import euler_to_quaternion
 
 WORLD_FRAME = "world"
 
@@ -93,19 +94,6 @@ class CarPose:
     width: float | None = None
     height: float | None = None
     colour: Colour | None = None
-
-
-def euler_to_quaternion(yaw: float, pitch: float, roll: float) -> tuple[float, float, float, float]:
-    """Quaternion (x, y, z, w) of the intrinsic z-y-x rotation yaw, then pitch, then roll."""
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
 
 
 def timestamp_from_ns(time_ns: int) -> Timestamp:

@@ -29,10 +29,11 @@ from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import numpy as np
-from d2a_core.sim.quiet_pybullet import pb
 from pydantic import Field, Strict
 
 from d2a_core.config.section import Section
+from d2a_core.sim.quiet_pybullet import pb
+from d2a_core.sim.rotation import euler_to_quaternion
 
 # Strict(False): YAML gives lists for these tuples
 Rgba = Annotated[tuple[float, float, float, float], Strict(False)]
@@ -132,21 +133,6 @@ class Collisions:
     def __iter__(self):
         # Lets callers unpack ``car_car, car_barrier = world.collisions()``.
         return iter((self.car_car, list(self.car_barrier)))
-
-
-def euler_to_quaternion(
-    yaw: float, pitch: float = 0.0, roll: float = 0.0
-) -> tuple[float, float, float, float]:
-    """Quaternion ``(x, y, z, w)`` of ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (pybullet's Euler convention)."""
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
 
 
 class _QuadMesh:

@@ -165,7 +165,7 @@ class DreamerAgent:
         n = np.asarray(transition["obs"]).shape[0]
         step: dict[str, np.ndarray] = {
             "obs": np.asarray(transition["obs"], np.float32).reshape(n, self.obs_size),
-            "action": self._to_internal_action(transition["action"]).cpu().numpy(),
+            "action": self._internal_action_array(transition["action"]),
             "reward": np.asarray(transition["reward"], np.float32).reshape(n),
             "is_first": np.asarray(transition["is_first"], bool).reshape(n),
             "is_terminal": np.asarray(transition["is_terminal"], bool).reshape(n),
@@ -305,14 +305,17 @@ class DreamerAgent:
     def _tensor(self, value: Any, dtype: torch.dtype) -> Tensor:
         return torch.as_tensor(np.asarray(value), dtype=dtype, device=self.device)
 
-    def _to_internal_action(self, env_actions: Any) -> Tensor:
+    def _internal_action_array(self, env_actions: Any) -> np.ndarray:
+        """Environment actions as the model sees them: in [-1, 1] (Box) or one-hot (Discrete)."""
         actions = np.asarray(env_actions)
         if self.discrete:
-            index = torch.as_tensor(actions.reshape(-1).astype(np.int64) - self._action_start, device=self.device)
-            return nn.functional.one_hot(index, self.action_size).float()
+            index = actions.reshape(-1).astype(np.int64) - self._action_start
+            return np.eye(self.action_size, dtype=np.float32)[index]
         flat = actions.reshape(-1, self.action_size).astype(np.float32)
-        internal = 2.0 * (flat - self._action_low) / self._action_span - 1.0
-        return self._tensor(np.clip(internal, -1.0, 1.0), torch.float32)
+        return np.clip(2.0 * (flat - self._action_low) / self._action_span - 1.0, -1.0, 1.0).astype(np.float32)
+
+    def _to_internal_action(self, env_actions: Any) -> Tensor:
+        return self._tensor(self._internal_action_array(env_actions), torch.float32)
 
     def _to_env_action(self, internal: Tensor) -> np.ndarray:
         values = internal.float().cpu().numpy()

@@ -76,8 +76,8 @@ class TwoHot:
 def unimix_probs(logits: Tensor, unimix: float) -> Tensor:
     """Softmax over the last axis mixed with `unimix` of the uniform distribution."""
     probs = torch.softmax(logits.float(), dim=-1)
-    if unimix > 0:
-        probs = probs * (1.0 - unimix) + unimix / logits.shape[-1]
+    if unimix > 0:  # the product is a fresh tensor nothing saved, so the add can be in place
+        probs = probs.mul(1.0 - unimix).add_(unimix / logits.shape[-1])
     return probs
 
 

@@ -192,12 +192,19 @@ class OneHotLinear(nn.Module):
             nn.init.trunc_normal_(weight, std=std, a=-2.0 * std, b=2.0 * std)
 
     def forward(self, dense: Tensor, index: Tensor, probs: Tensor | None) -> Tensor:
+        return F.linear(dense, self.dense_weight) + self.onehot_part(index, probs)
+
+    def compute_table(self) -> Tensor:
+        """The detached table in the compute dtype, for repeated `onehot_part` calls."""
+        return _compute_dtype(self.table.detach(), self.table.device)
+
+    def onehot_part(self, index: Tensor, probs: Tensor | None, table: Tensor | None = None) -> Tensor:
+        """The z part of the layer's output; `table` from `compute_table` saves re-casting it."""
         lead = index.shape[:-1]
         flat_index = index.reshape(-1, index.shape[-1])
-        flat_probs = _flat_probs(probs, flat_index)
-        joined = _compute_dtype(self.table.detach(), index.device)
-        sparse = _OneHotMatmul.apply(flat_index, flat_probs, joined, self.table)
-        return F.linear(dense, self.dense_weight) + sparse.reshape(*lead, sparse.shape[-1])
+        joined = self.compute_table() if table is None else table
+        sparse = _OneHotMatmul.apply(flat_index, _flat_probs(probs, flat_index), joined, self.table)
+        return sparse.reshape(*lead, sparse.shape[-1])
 
 
 class LatentMLP(nn.Module):

@@ -56,7 +56,7 @@ def sample_index(probs: Tensor, uniform: Tensor, offsets: Tensor) -> Tensor:
     """Flat sample indices (..., stoch) of categoricals probs (..., stoch, classes) by inverse
     CDF with uniform (..., stoch, 1); `offsets` = arange(stoch) * classes."""
     cdf = probs.detach().cumsum(-1)
-    local = (cdf < uniform).sum(-1).clamp_(max=probs.shape[-1] - 1)
+    local = torch.searchsorted(cdf, uniform).squeeze(-1).clamp_(max=probs.shape[-1] - 1)
     return local + offsets
 
 
@@ -98,14 +98,17 @@ class RSSM(nn.Module):
         update = torch.sigmoid(update - 1.0)
         return torch.lerp(h, cand, update)
 
-    def step(self, prev: Latent, action: Tensor, z_part: Tensor | None = None) -> Tensor:
+    def step(
+        self, prev: Latent, action: Tensor, z_part: Tensor | None = None, action_part: Tensor | None = None
+    ) -> Tensor:
         """Next deterministic state from the previous state and the action taken there.
-        `z_part` is the input layer's output for prev's z if already computed (fused readout)."""
+        `z_part` / `action_part` are the input layer's outputs for prev's z / the action when
+        already computed (fused readout, whole-sequence action projection)."""
         if z_part is None:
-            pre = self.img_in(action, prev.index, prev.probs)
-        else:
-            pre = F.linear(action, self.img_in.dense_weight) + z_part
-        return self.gru(F.silu(self.img_in_norm(pre)), prev.h)
+            z_part = self.img_in.onehot_part(prev.index, prev.probs)
+        if action_part is None:
+            action_part = F.linear(action, self.img_in.dense_weight)
+        return self.gru(F.silu(self.img_in_norm(z_part + action_part)), prev.h)
 
     def prior_logits(self, h: Tensor) -> Tensor:
         """Prior logits (..., stoch, classes) from the deterministic state."""
@@ -142,6 +145,8 @@ class RSSM(nn.Module):
         initial = self.initial(batch)
         latent = state if state is not None else initial
         prev_actions = prev_actions.masked_fill(is_first.unsqueeze(-1), 0.0)
+        action_pre = F.linear(prev_actions, self.img_in.dense_weight)
+        table = self.img_in.compute_table()
         w_obs = self.obs_out.linear.weight
         embed_pre = F.linear(embed, w_obs[:, self.deter :])
         w_obs_h = w_obs[:, : self.deter]
@@ -151,7 +156,8 @@ class RSSM(nn.Module):
         for t in range(length):
             if resets[t]:
                 latent = Latent.where(is_first[:, t], initial, latent)
-            h = self.step(latent, prev_actions[:, t])
+            z_part = self.img_in.onehot_part(latent.index, latent.probs, table)
+            h = self.step(latent, prev_actions[:, t], z_part, action_pre[:, t])
             hidden = self.obs_out.forward_preactivation(F.linear(h, w_obs_h) + embed_pre[:, t])
             logits = self.post_head(hidden).unflatten(-1, (self.stoch, self.classes))
             latent = self.sample(h, logits, uniform[t])
