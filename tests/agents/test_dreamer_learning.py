@@ -53,6 +53,8 @@ def _evaluate(policy, envs: int, seed: int) -> float:
 
 
 def test_smoke_agent_learns_to_reach_the_goal():
+    # Smoke size, and faster-than-paper learning rates, fewer two-hot bins and a faster slow
+    # critic so that ~400 updates (about 15 s on 2 cores) suffice; the algorithm is unchanged.
     config = DreamerConfig(
         units=64,
         layers=2,
@@ -78,7 +80,7 @@ def test_smoke_agent_learns_to_reach_the_goal():
     env = PointReach(envs, seed=0)
     step, state, env_steps = _first(env.reset()), None, 0
     episode_return, returns = np.zeros(envs), []
-    while agent.updates_done < 320:
+    while agent.updates_done < 400:
         action, state = agent.policy(step, state)
         agent.observe({**step, "action": action})
         env_steps += envs
@@ -100,8 +102,8 @@ def test_smoke_agent_learns_to_reach_the_goal():
     early_return = float(np.mean(returns[:3]))
     detail = f"learned {learned_return:.2f}, random {random_return:.2f}, training {np.round(returns, 1).tolist()}"
     assert random_return < -5.0, detail  # the task is not solved by chance
-    # Seeds 0-4 reach -1.5 .. -3.1 here (best possible about -0.5); a policy that does not
+    # Seeds 0-6 reach -1.1 .. -2.4 here (best possible about -0.5); a policy that does not
     # learn stays near its first episodes (about -10) or random actions (about -6).
-    assert learned_return > -4.0, detail
-    assert learned_return > random_return + 1.8, detail
+    assert learned_return > -3.5, detail
+    assert learned_return > random_return + 2.0, detail
     assert learned_return > early_return + 4.0, detail

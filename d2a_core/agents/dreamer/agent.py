@@ -85,9 +85,9 @@ class DreamerAgent:
             self.world_model = WorldModel(self.obs_size, self.action_size, self.config).to(self.device)
             self.behavior = Behavior(self.action_size, self.discrete, self.config).to(self.device)
         c = self.config
-        self.model_opt = torch.optim.Adam(self.world_model.parameters(), lr=c.model_lr, eps=c.model_eps, foreach=True)
-        self.actor_opt = torch.optim.Adam(self.behavior.actor.parameters(), lr=c.actor_lr, eps=c.actor_eps, foreach=True)
-        self.critic_opt = torch.optim.Adam(self.behavior.critic.parameters(), lr=c.critic_lr, eps=c.critic_eps, foreach=True)
+        self.model_opt = torch.optim.Adam(self.world_model.parameters(), lr=c.model_lr, eps=c.model_eps, fused=True)
+        self.actor_opt = torch.optim.Adam(self.behavior.actor.parameters(), lr=c.actor_lr, eps=c.actor_eps, fused=True)
+        self.critic_opt = torch.optim.Adam(self.behavior.critic.parameters(), lr=c.critic_lr, eps=c.critic_eps, fused=True)
         self.train_generator = torch.Generator(self.device).manual_seed(seed * 3 + 1)
         self.act_generator = torch.Generator(self.device).manual_seed(seed * 3 + 2)
         self.replay = SequenceReplay(c.replay_capacity, seed * 3 + 3)
@@ -198,13 +198,12 @@ class DreamerAgent:
             key: torch.as_tensor(value, device=self.device)
             for key, value in self.replay.sample(c.batch_size, c.batch_length).items()
         }
-        self.world_model.train()
         with self._autocast():
             wm_out = self.world_model.loss(batch, self.train_generator)
         self._check_finite({"wm/loss": wm_out.loss}, wm_out.metrics)
         self.model_opt.zero_grad(set_to_none=True)
         wm_out.loss.backward()
-        model_norm = self._clip(self.world_model.parameters(), c.model_grad_clip, "world model", wm_out.metrics)
+        model_norm = self._clip(self.world_model.parameters(), c.model_grad_clip, "world model")
         self.model_opt.step()
         world_model_done = time.perf_counter()
 
@@ -219,8 +218,8 @@ class DreamerAgent:
         self.critic_opt.zero_grad(set_to_none=True)
         # The two losses share no parameters' gradient paths (see Behavior.losses).
         (beh.actor_loss + beh.critic_loss).backward()
-        actor_norm = self._clip(actor_params, c.actor_grad_clip, "actor", beh.metrics)
-        critic_norm = self._clip(critic_params, c.critic_grad_clip, "critic", beh.metrics)
+        actor_norm = self._clip(actor_params, c.actor_grad_clip, "actor")
+        critic_norm = self._clip(critic_params, c.critic_grad_clip, "critic")
         self.actor_opt.step()
         self.critic_opt.step()
         self.behavior.return_norm.commit(beh.norm_low, beh.norm_high)
@@ -246,7 +245,7 @@ class DreamerAgent:
             raise TrainingError(f"non-finite loss {bad}; no update applied ({detail})")
 
     @staticmethod
-    def _clip(params, max_norm: float, name: str, metrics: Mapping[str, Tensor]) -> Tensor:
+    def _clip(params, max_norm: float, name: str) -> Tensor:
         norm = nn.utils.clip_grad_norm_(params, max_norm)
         if not bool(torch.isfinite(norm)):
             raise TrainingError(f"non-finite {name} gradient norm; no {name} update applied")

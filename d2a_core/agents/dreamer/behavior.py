@@ -133,7 +133,10 @@ class Actor(nn.Module):
         self.discrete = discrete
         self.config = config
         self.action_size = action_size
-        self.net = latent_mlp(config, action_size if discrete else 2 * action_size)
+        # Zero output layer: the untrained policy is centred (mean 0, wide std). A random
+        # initial mean bias (e.g. steering hard one way) otherwise fills the first replay with
+        # one kind of failure that the agent can then lock onto.
+        self.net = latent_mlp(config, action_size if discrete else 2 * action_size, zero_output=True)
 
     def sample(self, feat: Latent, noise: Tensor) -> tuple[Tensor, Tensor]:
         """Action and entropy. `noise` is N(0, 1) of shape (..., A) for continuous actions and

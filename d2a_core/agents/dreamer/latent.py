@@ -94,7 +94,7 @@ class _OneHotMatmul(torch.autograd.Function):
     def forward(ctx, index: Tensor, probs: Tensor, joined: Tensor, *tables: Tensor) -> Tensor:  # type: ignore[override]
         ctx.save_for_backward(index, joined)
         ctx.sizes = [table.shape[1] for table in tables]
-        ctx.probs_shape, ctx.probs_dtype = probs.shape, probs.dtype
+        ctx.probs_dtype = probs.dtype
         return F.embedding_bag(index, joined, mode="sum")
 
     @staticmethod
