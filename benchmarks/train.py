@@ -5,6 +5,11 @@ observations of size 40 and 2 continuous actions. Prints one JSON object: update
 warm-up and the world-model and behaviour seconds of each update, per model width.
 
     python benchmarks/train.py --units 128 512 --updates 5
+    python benchmarks/train.py --loop-steps 4000        # the full loop on the straightaway
+
+`--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
+ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
+acting (policy inference and replay writes) and learning.
 """
 
 from __future__ import annotations
@@ -84,6 +89,73 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
     }
 
 
+class _TimedEnv:
+    """Delegates to an env and adds the time spent in its reset and step to `clock[0]`."""
+
+    def __init__(self, env, clock: list[float]):
+        self._env, self._clock = env, clock
+
+    def __getattr__(self, name):
+        return getattr(self._env, name)
+
+    def reset(self, **kwargs):
+        start = time.perf_counter()
+        try:
+            return self._env.reset(**kwargs)
+        finally:
+            self._clock[0] += time.perf_counter() - start
+
+    def step(self, action):
+        start = time.perf_counter()
+        try:
+            return self._env.step(action)
+        finally:
+            self._clock[0] += time.perf_counter() - start
+
+
+def full_loop(args: argparse.Namespace) -> dict:
+    """Wall-time shares of simulation, acting and learning in the training loop."""
+    from d2a_core.sim.race_env import RaceEnv
+    from d2a_core.training.rollout import Collector
+
+    sim_clock = [0.0]
+    envs = [_TimedEnv(RaceEnv("straightaway", intent="pass"), sim_clock) for _ in range(8)]
+    config = DreamerConfig(units=128, deter=256, stoch=16, classes=16, train_ratio=args.train_ratio,
+                           imag_starts=256, prefill_steps=1000, precision=args.precision, device=args.device)
+    agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, config, seed=0)
+    collector = Collector(envs, agent, seed=0)
+    env_steps = 0
+    while env_steps < config.prefill_steps:  # untimed: random-policy prefill and the first update
+        collector.step()
+        env_steps += collector.n
+    agent.train_step()
+    sim_clock[0], learn, updates = 0.0, 0.0, 0
+    start = time.perf_counter()
+    for _ in range(args.loop_steps // collector.n):
+        collector.step()
+        env_steps += collector.n
+        learn_start = time.perf_counter()
+        for _ in range(agent.updates_due(env_steps)):
+            agent.train_step()
+            updates += 1
+        learn += time.perf_counter() - learn_start
+    total = time.perf_counter() - start
+    act = total - learn - sim_clock[0]
+    return {
+        "benchmark": "dreamer_training_loop",
+        "env_steps": args.loop_steps,
+        "envs": collector.n,
+        "train_ratio": args.train_ratio,
+        "updates": updates,
+        "wall_s": total,
+        "env_steps_per_s": args.loop_steps / total,
+        "updates_per_s": updates / learn if learn else None,
+        "share_simulation": sim_clock[0] / total,
+        "share_acting": act / total,
+        "share_learning": learn / total,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, nargs="+", default=[128, 512], help="MLP widths to time")
@@ -96,8 +168,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--obs-dim", type=int, default=40)
     parser.add_argument("--action-dim", type=int, default=2)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--loop-steps", type=int, default=0, help="time the full training loop instead")
+    parser.add_argument("--train-ratio", type=float, default=64.0, help="replayed steps per env step (loop)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    if args.loop_steps:
+        report = {**full_loop(args), "precision": args.precision, "device": args.device, "threads": args.threads,
+                  "torch": torch.__version__, "load_average_after": os.getloadavg()}
+        json.dump(report, sys.stdout, indent=2)
+        print()
+        return 0
     results = [benchmark(u, args.deter or u, args.updates, args.warmup, args) for u in args.units]
     report = {
         "benchmark": "dreamer_full_update",

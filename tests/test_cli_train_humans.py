@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -67,7 +68,8 @@ def test_resume_after_sigkill(cli, track_store):
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:
         humans = [a for a in store.list("human") if a.labels["intent"] == "left"]
-        if humans:
+        # The resume point is the run state written just after each checkpoint artifact.
+        if humans and list((Path(track_store) / "runs").glob("*/state.pt")):
             break
         time.sleep(0.2)
     else:

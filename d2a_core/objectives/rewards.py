@@ -3,7 +3,8 @@
 Notation: `s` distance along the centreline, `e` lateral offset (positive = left);
 `ds_t = s_ego - s_opp`, `de_t = e_ego - e_opp`. All constants come from `RewardConfig`.
 
-- task:  r_collision * I(collision) + r_bounds * I(off track) + r_finish * I(finish)
+- task:  (r_collision + r_forfeit * (finish - s)) * I(collision)
+         + (r_bounds + r_forfeit * (finish - s)) * I(off track) + r_finish * I(finish)
 - pass:  c_pass * (ds_t - ds_{t-1}) * I(|ds_t| <= W_pass or |ds_{t-1}| <= W_pass)
 - stay:  (s_t - s_{t-1}) + c_stay * (ds_t - ds_{t-1}) * I(|ds_t| <= W_stay or |ds_{t-1}| <= W_stay)
 - left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin)
@@ -25,11 +26,16 @@ INTENTS = ("pass", "stay", "left", "right")
 class RewardConfig(Section):
     """Task and intent reward constants (paper section 3 and appendix 'Human Objectives')."""
 
-    # The paper gives only the signs of the task terms. Their size must outweigh what the dense
-    # pass term can cost: with a small penalty, a driver falling behind learns that crashing
-    # early (ending the stream of negative passing reward) is its best option.
+    # The paper gives only the signs of the task terms. A constant penalty alone lets a driver
+    # that is falling behind end the stream of negative passing reward by crashing: before it
+    # can drive, every episode ends early anyway, and the earliest end loses the least. A crash
+    # forfeits the rest of the race, so it also pays per metre left to the finish (at the pass
+    # term's rate): then every metre survived is worth more than it can cost.
     collision: float = Field(-100.0, le=0, description="r^collision, paid once when a collision ends the episode")
     bounds: float = Field(-100.0, le=0, description="r^bounds, paid once when the car leaves the track too far")
+    forfeit_per_m: float = Field(
+        -10.0, le=0, description="added to r^collision / r^bounds per metre between the car and the finish line"
+    )
     finish: float = Field(100.0, ge=0, description="r^finish, paid once when the finish line is reached")
     c_pass: float = Field(10.0, description="scale of the pass term on ds_t - ds_{t-1}")
     pass_window_m: float = Field(800.0, gt=0, description="s_high = -s_low of the pass indicator")
@@ -51,6 +57,7 @@ class StepQuantities:
     collision: bool
     off_track: bool
     finished: bool
+    remaining_m: float = 0.0  # distance from the car to the finish line
 
 
 @dataclass(frozen=True)
@@ -89,9 +96,10 @@ def _windowed_delta(q: StepQuantities, window: float) -> float:
 
 def task_reward(q: StepQuantities, cfg: RewardConfig) -> tuple[float, float, float]:
     """(r_collision, r_bounds, r_finish) for this step."""
+    forfeit = cfg.forfeit_per_m * max(q.remaining_m, 0.0)
     return (
-        cfg.collision if q.collision else 0.0,
-        cfg.bounds if q.off_track else 0.0,
+        cfg.collision + forfeit if q.collision else 0.0,
+        cfg.bounds + forfeit if q.off_track else 0.0,
         cfg.finish if q.finished else 0.0,
     )
 

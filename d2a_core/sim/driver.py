@@ -126,7 +126,7 @@ class LineFollower:
         curvature = 2.0 * left / dist_sq  # pure pursuit: the arc through the target point
         delta = math.atan(wheelbase * curvature)
         delta -= cfg.yaw_damping * (state.yaw_rate - curvature * speed)
-        steer = max(-1.0, min(1.0, delta / self.vehicle.max_steer_rad))
+        steer = max(-1.0, min(1.0, delta / self.vehicle.steer_lock_rad(speed)))
 
         v_target = self.target_speed(s + speed * cfg.speed_preview_s)
         accel = cfg.speed_gain * (v_target - speed)

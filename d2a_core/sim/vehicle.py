@@ -20,6 +20,7 @@ counter-clockwise; steer angle positive to the left.
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
@@ -55,6 +56,12 @@ class VehicleConfig(Section):
     rear_tyre: TyreConfig = Field(default_factory=_rear_tyre)
     max_steer_rad: float = Field(0.35, gt=0, lt=1.2, description="road-wheel angle at steer command 1")
     max_steer_rate_rad_s: float = Field(1.5, gt=0, description="slew limit of the road-wheel angle")
+    steer_lock_lateral_g: Optional[float] = Field(
+        3.0,
+        gt=0,
+        description="speed-sensitive steering: at speed, steer command 1 asks at most this lateral "
+        "acceleration (kinematic estimate, in g) instead of max_steer_rad; null disables",
+    )
     engine_power_w: float = Field(250_000.0, gt=0, description="drive force is capped by power / speed")
     max_drive_force_n: float = Field(
         10_000.0, gt=0, description="drive force cap at low speed (torque / traction limit)"
@@ -104,6 +111,19 @@ class VehicleConfig(Section):
     def wheelbase_m(self) -> float:
         """Distance between the axles."""
         return self.cog_to_front_axle_m + self.cog_to_rear_axle_m
+
+    def steer_lock_rad(self, speed_m_s: float) -> float:
+        """Road-wheel angle at steer command 1 when driving at `speed_m_s`.
+
+        Like CARLA's steering curve or a racing wheel's speed-sensitive ratio: a fixed lock of
+        0.35 rad at 40 m/s asks for ~15 g, so every command above a few percent would spin the car
+        and no driver (or policy with exploration noise) could use the input range. The limit
+        still allows about twice the tyres' grip, so the car can be driven past it and spun.
+        """
+        if self.steer_lock_lateral_g is None or speed_m_s <= 0.0:
+            return self.max_steer_rad
+        grip_angle = math.atan(self.wheelbase_m * self.steer_lock_lateral_g * self.gravity_m_s2 / (speed_m_s * speed_m_s))
+        return min(self.max_steer_rad, grip_angle)
 
 
 class VehicleState:
@@ -287,7 +307,7 @@ class Vehicle:
         steer_cmd = 1.0 if steer_cmd > 1.0 else (-1.0 if steer_cmd < -1.0 else float(steer_cmd))
         accel_cmd = 1.0 if accel_cmd > 1.0 else (-1.0 if accel_cmd < -1.0 else float(accel_cmd))
         h = dt / substeps
-        steer_target = steer_cmd * max_steer
+        steer_target = steer_cmd * self.config.steer_lock_rad(self.state.speed)
         max_steer_change = steer_rate * h
         # Relaxing faster than one substep would overshoot (explicit Euler).
         kin_rate = inv_kin_tau if inv_kin_tau * h < 1.0 else 1.0 / h

@@ -63,3 +63,15 @@ def test_task_terms_and_human_reward():
     assert t.human(None) == t.task
     custom = RewardConfig(c_pass=3.0, collision=-50.0)
     assert reward_terms(q(collision=True), custom).human("pass") == pytest.approx(-50.0 + 3.0)
+
+
+def test_a_crash_forfeits_the_rest_of_the_race():
+    t = reward_terms(q(collision=True, remaining_m=250.0), CFG)
+    assert t.collision == pytest.approx(CFG.collision + CFG.forfeit_per_m * 250.0)
+    t = reward_terms(q(off_track=True, remaining_m=40.0), CFG)
+    assert t.bounds == pytest.approx(CFG.bounds + CFG.forfeit_per_m * 40.0)
+    # crashing later always costs less: surviving a metre is worth its forfeit
+    early, late = (reward_terms(q(collision=True, remaining_m=r), CFG).task for r in (300.0, 299.0))
+    assert late - early == pytest.approx(-CFG.forfeit_per_m)
+    assert reward_terms(q(finished=True, remaining_m=0.0), CFG).task == CFG.finish
+    assert reward_terms(q(remaining_m=100.0), CFG).task == 0.0

@@ -96,7 +96,9 @@ def test_collision_with_opponent_terminates(straight):
     infos, rewards, terminated, _ = run(env, lambda o: np.array([0.0, 0.5]))
     last = infos[-1]
     assert terminated and last["collision_car"] and not last["collision_barrier"]
-    assert last["reward_terms"]["collision"] == RewardConfig().collision
+    cfg = RewardConfig()
+    remaining = env.unwrapped.track.finish_s - last["s"]
+    assert last["reward_terms"]["collision"] == pytest.approx(cfg.collision + cfg.forfeit_per_m * remaining)
     assert last["s"] == pytest.approx(grid.s + 30.0 - env.cfg.car_length_m, abs=3.5)
 
 
@@ -116,8 +118,10 @@ def test_off_track_terminates(straight):
     last = infos[-1]
     assert terminated and last["off_track"] and not last["collision"]
     assert last["e"] > straight.width_at(last["s"])[0] + env.cfg.off_track_margin_m
-    assert last["reward_terms"]["bounds"] == RewardConfig().bounds
-    assert rewards[-1] == pytest.approx(RewardConfig().bounds + last["reward_terms"]["pass"])
+    cfg = RewardConfig()
+    bounds = cfg.bounds + cfg.forfeit_per_m * (env.unwrapped.track.finish_s - last["s"])
+    assert last["reward_terms"]["bounds"] == pytest.approx(bounds)
+    assert rewards[-1] == pytest.approx(bounds + last["reward_terms"]["pass"])
 
 
 def test_time_limit_truncates(straight):

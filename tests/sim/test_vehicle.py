@@ -10,10 +10,21 @@ import pytest
 from pydantic import ValidationError
 
 from d2a_core.sim.tyres import TyreConfig, ellipse_factor, lateral_mu, load_scaled_mu, peak_slip_angle
-from d2a_core.sim.vehicle import Vehicle, VehicleConfig, VehicleState
+from d2a_core.sim.vehicle import Vehicle as _Vehicle
+from d2a_core.sim.vehicle import VehicleConfig, VehicleState
 
 DT = 0.1
 G = 9.81
+
+
+def raw_config(**overrides) -> VehicleConfig:
+    """A car whose steer command maps to a fixed road-wheel angle at every speed, so tyre tests
+    can ask for a given angle; speed-sensitive steering has tests of its own."""
+    return VehicleConfig(steer_lock_lateral_g=None, **overrides)
+
+
+def Vehicle(config: VehicleConfig | None = None) -> _Vehicle:  # noqa: N802 - stands in for the class
+    return _Vehicle(config if config is not None else raw_config())
 
 
 def hold_speed(state: VehicleState, target: float) -> float:
@@ -77,7 +88,7 @@ def test_full_throttle_from_rest_accelerates_to_plausible_top_speed():
 
 
 def test_power_limit_sets_acceleration_at_speed():
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     speed = 40.0
     vehicle.reset(0.0, 0.0, 0.0, speed)
@@ -116,7 +127,7 @@ def test_brakes_hold_on_a_slope_and_release_lets_the_car_roll_back():
 
 
 def test_coasting_decelerates_by_drag_and_rolling_resistance_without_spinning():
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     speed = 40.0
     vehicle.reset(0.0, 0.0, 0.0, speed)
@@ -170,7 +181,7 @@ def test_grade_force_is_the_slope_component_of_gravity():
 
 
 def test_steady_corner_at_sane_speed_is_stable_with_yaw_rate_speed_over_radius():
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     steer = 0.3
     speed = 15.0
@@ -195,7 +206,7 @@ def test_steady_corner_at_sane_speed_is_stable_with_yaw_rate_speed_over_radius()
 
 def test_steady_corner_forces_are_the_magic_formula_at_the_reported_slip_angles():
     """Yaw balance puts lf / L of the lateral force on the rear axle; the tyre curve must supply it."""
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     s = settle_in_corner(vehicle, 0.3, 15.0, seconds=6.0)
     wheelbase = config.wheelbase_m
@@ -299,7 +310,7 @@ def test_braking_in_a_straight_line_damps_a_yaw_disturbance():
 
 
 def _slalom_path(substeps: int) -> list[tuple[float, float]]:
-    vehicle = Vehicle(VehicleConfig(substeps=substeps))
+    vehicle = Vehicle(raw_config(substeps=substeps))
     vehicle.reset(0.0, 0.0, 0.0, 20.0)
     path = []
     for i in range(60):
@@ -327,7 +338,7 @@ def test_default_substeps_agree_with_four_times_finer_integration():
 
 
 def test_low_speed_full_lock_follows_the_kinematic_circle():
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     vehicle.reset(0.0, 0.0, 0.0, 0.0)
     for _ in range(40):
@@ -349,7 +360,7 @@ def test_standstill_with_steering_stays_put():
 
 
 def test_steering_is_rate_limited():
-    config = VehicleConfig()
+    config = raw_config()
     vehicle = Vehicle(config)
     vehicle.reset(0.0, 0.0, 0.0, 10.0)
     s = vehicle.step(1.0, 0.0)
@@ -410,3 +421,36 @@ def test_config_rejects_unknown_and_inconsistent_values_and_merges_partial_tyres
     assert config.rear_tyre.b_stiffness == 11.0
     assert config.rear_tyre.d_peak_mu == default.rear_tyre.d_peak_mu
     assert config.front_tyre == default.front_tyre
+
+
+def test_steer_lock_shrinks_with_speed_but_still_allows_driving_past_the_grip():
+    config = VehicleConfig()
+    assert config.steer_lock_rad(0.0) == config.max_steer_rad
+    assert config.steer_lock_rad(8.0) == config.max_steer_rad
+    locks = [config.steer_lock_rad(v) for v in (20.0, 30.0, 40.0, 60.0)]
+    assert all(a > b for a, b in zip(locks, locks[1:]))
+    # full lock asks about steer_lock_lateral_g of lateral acceleration (kinematic estimate)
+    v = 40.0
+    assert v * v * math.tan(config.steer_lock_rad(v)) / config.wheelbase_m == pytest.approx(3.0 * G, rel=1e-6)
+    assert VehicleConfig(steer_lock_lateral_g=None).steer_lock_rad(v) == config.max_steer_rad
+
+
+@pytest.mark.parametrize("speed, accel", [(25.0, 1.0), (40.0, -0.5)], ids=["power-oversteer", "brake-in-turn"])
+def test_full_lock_at_speed_can_still_spin_the_car(speed, accel):
+    """Speed-sensitive steering keeps the input range usable, not the car safe."""
+    vehicle = _Vehicle(VehicleConfig())
+    vehicle.reset(0.0, 0.0, 0.0, speed)
+    max_beta = 0.0
+    for _ in range(30):
+        s = vehicle.step(1.0, accel)
+        max_beta = max(max_beta, abs(math.degrees(s.sideslip)))
+    assert max_beta > 60.0
+
+
+def test_small_commands_at_speed_stay_within_grip():
+    """A policy's exploration noise (about 0.1 of full scale) does not spin the car at 40 m/s."""
+    vehicle = _Vehicle(VehicleConfig())
+    vehicle.reset(0.0, 0.0, 0.0, 40.0)
+    for i in range(50):
+        s = vehicle.step(0.1 * (-1) ** (i // 3), 0.5)
+        assert abs(math.degrees(s.sideslip)) < 3.0
