@@ -6,6 +6,8 @@ An episode's infos are the reset info followed by one info per step. Metrics:
 - `return`: the sum of the rewards received (the episode's own objective);
 - `return_<intent>`: the return the same episode earns under each intent's objective;
 - `collision`, `collision_car`, `collision_barrier`, `off_track`, `finished`: 0/1 outcomes;
+- `finished_ahead`: finished with ds > 0; `finished_never_ahead`: finished with ds < 0 on every
+  step (what a pass and a stay driver are after);
 - `mean_speed_m_s`; `overtakes`: times ds went from behind (< 0) to ahead (>= 0) while the
   opponent was racing; `ahead_at_end`: ds > 0 on the last step; `share_left`: share of steps spent
   left of the opponent (de > 0);
@@ -23,7 +25,7 @@ import numpy as np
 from d2a_core.objectives.rewards import INTENTS
 
 METRIC_NAMES = ("progress_m", "return", *(f"return_{i}" for i in INTENTS), "collision", "collision_car",
-                "collision_barrier", "off_track", "finished", "mean_speed_m_s", "overtakes", "ahead_at_end",
+                "collision_barrier", "off_track", "finished", "finished_ahead", "finished_never_ahead", "mean_speed_m_s", "overtakes", "ahead_at_end",
                 "share_left", "steps", "intervention")
 
 
@@ -44,6 +46,8 @@ def episode_metrics(infos: Sequence[dict[str, Any]], rewards: Sequence[float]) -
         "collision_barrier": float(last["collision_barrier"]),
         "off_track": float(last["off_track"]),
         "finished": float(last["finished"]),
+        "finished_ahead": float(bool(last["finished"]) and last["ds"] > 0),
+        "finished_never_ahead": float(bool(last["finished"]) and bool(np.all(ds < 0))),
         "mean_speed_m_s": float(np.mean([i["speed"] for i in steps])),
         "overtakes": float(overtakes),
         "ahead_at_end": float(last["ds"] > 0),
