@@ -3,8 +3,8 @@
 Notation: `s` distance along the centreline, `e` lateral offset (positive = left);
 `ds_t = s_ego - s_opp`, `de_t = e_ego - e_opp`. All constants come from `RewardConfig`.
 
-- task:  (r_collision + r_forfeit * (finish - s_opp)) * I(collision)
-         + (r_bounds + r_forfeit * (finish - s_opp)) * I(off track) + r_finish * I(finish)
+- task:  (r_collision + r_forfeit * D) * I(collision) + (r_bounds + r_forfeit * D) * I(off track)
+         + r_finish * I(finish), D = how far the opponent still drives until the time limit
 - pass:  c_pass * (ds_t - ds_{t-1}) * I(|ds_t| <= W_pass or |ds_{t-1}| <= W_pass)
 - stay:  (s_t - s_{t-1}) + c_stay * (ds_t - ds_{t-1}) * I(|ds_t| <= W_stay or |ds_{t-1}| <= W_stay)
 - left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin)
@@ -26,17 +26,18 @@ INTENTS = ("pass", "stay", "left", "right")
 class RewardConfig(Section):
     """Task and intent reward constants (paper section 3 and appendix 'Human Objectives')."""
 
-    # The paper gives only the signs of the task terms. With a constant penalty alone, a driver
-    # that is behind ends the stream of negative passing reward by crashing: before it can
-    # drive, every episode ends early anyway, and the earliest end loses the least. A crashed car
-    # stays where it is while the opponent races on, so the crash also pays, at the pass term's
-    # rate, the distance the opponent still has to the finish. A pass episode that ends in a
-    # crash then returns 10 * (s_ego at the crash - finish) + const: every metre driven counts.
+    # The paper gives only the signs of the task terms. With a constant penalty alone, a pass
+    # driver that is behind ends the stream of negative passing reward by crashing: before it
+    # can drive, every episode ends early anyway, and the earliest end loses the least. A crashed
+    # car stays where it is while the opponent drives on, so the crash also pays, at the pass
+    # term's rate, the distance the opponent still covers until the time limit (not capped by the
+    # pass window, so no crash beats stopping). A pass episode that ends in a crash at s then
+    # returns 10 * s + const: every metre driven counts, and any finish beats any crash.
     collision: float = Field(-100.0, le=0, description="r^collision, paid once when a collision ends the episode")
     bounds: float = Field(-100.0, le=0, description="r^bounds, paid once when the car leaves the track too far")
     forfeit_per_m: float = Field(
         -10.0, le=0,
-        description="added to r^collision / r^bounds per metre the opponent still has to race to the finish",
+        description="added to r^collision / r^bounds per metre the opponent still drives until the time limit",
     )
     finish: float = Field(100.0, ge=0, description="r^finish, paid once when the finish line is reached")
     c_pass: float = Field(10.0, description="scale of the pass term on ds_t - ds_{t-1}")
@@ -59,7 +60,7 @@ class StepQuantities:
     collision: bool
     off_track: bool
     finished: bool
-    remaining_m: float = 0.0  # distance the opponent still has to race to the finish line
+    remaining_m: float = 0.0  # distance the opponent still drives until the time limit
 
 
 @dataclass(frozen=True)

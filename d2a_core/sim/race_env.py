@@ -168,6 +168,8 @@ class RaceEnv(gym.Env):
         self._applied = (0.0, 0.0)
         self._place_cars()
         self._ds = self._s - self._opp_s
+        at_limit = self._replay.at(self._max_steps)
+        self._opp_s_at_limit = self._replay.s_after_end(self._max_steps, self.cfg.dt) if at_limit is None else at_limit[5]
         return self._observation(), self._info(None, collision=(False, False), off_track=False, finished=False)
 
     def step(self, action):
@@ -192,7 +194,7 @@ class RaceEnv(gym.Env):
         collision = car_hit or barrier_hit
         q = StepQuantities(s=self._s, s_prev=s_prev, ds=self._ds, ds_prev=ds_prev, de=self._e - self._opp_e,
                            collision=collision, off_track=off_track and not collision, finished=finished and not collision,
-                           remaining_m=self.track.finish_s - self._opp_s)
+                           remaining_m=self._opp_s_at_limit - self._opp_s)
         terms = reward_terms(q, self.reward_cfg)
         reward = terms.human(self.intent)
         terminated = collision or off_track or finished
@@ -294,6 +296,7 @@ class RaceEnv(gym.Env):
             "opponent_s": self._opp_s,
             "opponent_e": self._opp_e,
             "opponent_racing": self._opp_racing,
+            "opponent_s_at_limit": self._opp_s_at_limit,
             "collision": collision[0] or collision[1],
             "collision_car": collision[0],
             "collision_barrier": collision[1],

@@ -70,12 +70,12 @@ def test_a_crash_forfeits_the_rest_of_the_race():
     assert t.collision == pytest.approx(CFG.collision + CFG.forfeit_per_m * 250.0)
     t = reward_terms(q(off_track=True, remaining_m=40.0), CFG)
     assert t.bounds == pytest.approx(CFG.bounds + CFG.forfeit_per_m * 40.0)
-    # the pass return of an episode that ends in a crash grows by c_pass per metre driven,
-    # whatever the opponent did meanwhile: (pass terms so far) + forfeit = c_pass * (s_ego - finish)
-    finish, start_gap = 370.0, -5.0
+    # a pass episode that ends in a crash returns c_pass * s_ego + const, whatever the opponent
+    # did meanwhile: (pass terms so far) + forfeit, with the opponent at s_limit at the time limit
+    s_limit, start_gap = 900.0, -5.0
     for s_ego, s_opp in ((30.0, 40.0), (30.0, 120.0), (200.0, 260.0)):
         passing = CFG.c_pass * ((s_ego - s_opp) - start_gap)
-        total = passing + reward_terms(q(collision=True, remaining_m=finish - s_opp), CFG).task
-        assert total == pytest.approx(CFG.collision + CFG.c_pass * (s_ego - finish - start_gap))
+        total = passing + reward_terms(q(collision=True, remaining_m=s_limit - s_opp), CFG).task
+        assert total == pytest.approx(CFG.collision + CFG.c_pass * (s_ego - s_limit - start_gap))
     assert reward_terms(q(finished=True, remaining_m=0.0), CFG).task == CFG.finish
     assert reward_terms(q(remaining_m=100.0), CFG).task == 0.0

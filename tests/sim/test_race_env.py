@@ -97,7 +97,7 @@ def test_collision_with_opponent_terminates(straight):
     last = infos[-1]
     assert terminated and last["collision_car"] and not last["collision_barrier"]
     cfg = RewardConfig()
-    remaining = env.unwrapped.track.finish_s - (last["s"] - last["ds"])  # the opponent's way to go
+    remaining = last["opponent_s_at_limit"] - last["opponent_s"]
     assert last["reward_terms"]["collision"] == pytest.approx(cfg.collision + cfg.forfeit_per_m * remaining)
     assert last["s"] == pytest.approx(grid.s + 30.0 - env.cfg.car_length_m, abs=3.5)
 
@@ -119,7 +119,7 @@ def test_off_track_terminates(straight):
     assert terminated and last["off_track"] and not last["collision"]
     assert last["e"] > straight.width_at(last["s"])[0] + env.cfg.off_track_margin_m
     cfg = RewardConfig()
-    bounds = cfg.bounds + cfg.forfeit_per_m * (env.unwrapped.track.finish_s - (last["s"] - last["ds"]))
+    bounds = cfg.bounds + cfg.forfeit_per_m * (last["opponent_s_at_limit"] - last["opponent_s"])
     assert last["reward_terms"]["bounds"] == pytest.approx(bounds)
     assert rewards[-1] == pytest.approx(bounds + last["reward_terms"]["pass"])
 
