@@ -199,3 +199,27 @@ def test_symlog_mse_decoder_target(make_agent):
     }
     out = model.loss(batch, torch.Generator().manual_seed(0))
     assert out.metrics["wm/decoder_loss"].item() < 3 * (symlog(torch.tensor(1e6)).item() + 3) ** 2
+
+
+def test_the_actor_cannot_raise_its_return_by_predicting_termination(make_agent):
+    """Constant reward -10 and a constant critic: the return depends on the policy only through
+    the predicted continuation. As in DreamerV3's reference code the actor uses the continue
+    head's mode without gradient, so it gets no gradient at all (a differentiable continuation
+    would teach a driver that is losing ground to end episodes, e.g. by crashing, for free)."""
+    config = make_agent(actor_entropy=0.0).config
+    model = _world_model_with_constant_reward(config, -10.0)
+    with torch.no_grad():  # continuation depends on the state, around 50 %
+        model.continue_head.out.bias.zero_()
+        model.continue_head.out.weight.normal_(0.0, 1.0)
+    torch.manual_seed(1)
+    behavior = Behavior(action_size=1, discrete=False, config=config)
+    with torch.no_grad():
+        for p in behavior.actor.net.out.parameters():
+            p.normal_(0.0, 0.1)
+    start = model.rssm.initial(64)
+    start = Latent(start.h + 0.5 * torch.randn(64, config.deter), start.index, start.probs)
+    out = behavior.losses(model, start, torch.ones(64), torch.Generator().manual_seed(2))
+    assert 0.0 < out.metrics["imag/continue"].item() < 1.0, "the model predicts some terminations"
+    out.actor_loss.backward()
+    grads = [p.grad for p in behavior.actor.parameters() if p.grad is not None]
+    assert grads and all(torch.count_nonzero(g) == 0 for g in grads)

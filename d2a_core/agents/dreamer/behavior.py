@@ -206,7 +206,7 @@ class Behavior(nn.Module):
         self, world_model: WorldModel, start: Latent, generator: torch.Generator | None
     ) -> tuple[Imagined, Tensor, Tensor, Tensor]:
         """Roll out the actor in the frozen world model; return the rollout, rewards and
-        continue probabilities of states 1..H (H, N) and critic values of states 0..H (H+1, N).
+        continue flags (0/1) of states 1..H (H, N) and critic values of states 0..H (H+1, N).
 
         The critic is frozen here too: its values only pass gradients to the actor through the
         imagined states. It learns from its own pass on detached states
@@ -237,7 +237,12 @@ class Behavior(nn.Module):
                 else:
                     pres = [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in (1, 2, 3)]
                 rewards.append(world_model.twohot.mean(world_model.reward_head.finish(pres[0])))
-                conts.append(torch.sigmoid(world_model.continue_head.finish(pres[1]).squeeze(-1).float()))
+                # The continue head's mode, without gradient (as DreamerV3's reference code): a
+                # differentiable probability lets the actor lower its continuation wherever the
+                # future looks negative, i.e. learn to end episodes without paying the penalty
+                # that ends them in the real env (the penalty is in the reward, not in cont).
+                with torch.no_grad():
+                    conts.append((world_model.continue_head.finish(pres[1]).squeeze(-1) > 0).float())
                 values.append(self.twohot.mean(self.critic.finish(pres[2])))
         reward = torch.cat(rewards).view(horizon + 1, n)[1:]
         cont = torch.cat(conts).view(horizon + 1, n)[1:]
