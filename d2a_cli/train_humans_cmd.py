@@ -56,13 +56,15 @@ def train_humans(
 
     def render(r: dict[str, Any]) -> None:
         for pop in r["populations"]:
-            table = Table("checkpoint", "env step", "fraction", "progress (m)", "return", "collisions", "ahead",
-                          "left share", title=f"humans/{pop['track']}/{pop['intent']}  expert {pop['expert'][:12]}")
+            # short headers so that the table fits 80 columns; --json has every metric by name
+            table = Table("id", "step", "return", "prog m", "fin", "fin ahead", "coll", "off", "left", "m/s",
+                          title=f"humans/{pop['track']}/{pop['intent']}  expert {pop['expert'][:12]}")
             for c in pop["checkpoints"]:
                 m = c["metrics"]
-                table.add_row(c["id"][:12], str(c["env_step"]), f"{c['fraction']:.2f}", f"{m['progress_m']:.0f}",
-                              f"{m['return']:.1f}", f"{m['collision']:.2f}", f"{m['ahead_at_end']:.2f}",
-                              f"{m['share_left']:.2f}")
+                table.add_row(c["id"][:8], str(c["env_step"]), f"{m['return']:.0f}",
+                              f"{m['progress_m']:.0f}", f"{m['finished']:.2f}", f"{m['finished_ahead']:.2f}",
+                              f"{m['collision']:.2f}", f"{m['off_track']:.2f}", f"{m['share_left']:.2f}",
+                              f"{m['mean_speed_m_s']:.1f}")
             out_console.print(table)
 
     run.emit({"populations": populations}, render)
