@@ -24,8 +24,12 @@ class OpponentsConfig(Section):
     """How `make-track` generates opponent replays."""
 
     count: int = Field(8, ge=1, le=64)
-    pace_min: float = Field(0.75, gt=0, le=1.2, description="slowest replay, as a fraction of the tyre limit")
-    pace_max: float = Field(0.95, gt=0, le=1.2, description="fastest replay, as a fraction of the tyre limit")
+    # Pace also caps the replay's throttle. On the straightaway, where the car is power-limited,
+    # a replay above ~0.85 reaches the finish before a flat-out ego could pass it from its grid
+    # slot 15 m behind (measured: 0.95 finishes 8 m ahead of it), so a pass driver could not
+    # succeed against every opponent. At <= 0.8 a flat-out ego finishes >= 15 m ahead of each.
+    pace_min: float = Field(0.6, gt=0, le=1.2, description="slowest replay, as a fraction of the tyre limit (and throttle)")
+    pace_max: float = Field(0.8, gt=0, le=1.2, description="fastest replay, as a fraction of the tyre limit (and throttle)")
     line_offset_max_m: float = Field(2.0, ge=0, description="largest lateral offset of a replay's line")
 
     @model_validator(mode="after")
