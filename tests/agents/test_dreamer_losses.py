@@ -223,3 +223,33 @@ def test_the_actor_cannot_raise_its_return_by_predicting_termination(make_agent)
     out.actor_loss.backward()
     grads = [p.grad for p in behavior.actor.parameters() if p.grad is not None]
     assert grads and all(torch.count_nonzero(g) == 0 for g in grads)
+
+
+def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(make_agent):
+    """`wm/terminal_*` report the continue probability and the symlog reward error of the
+    world model's own predictions on the terminal steps of the batch (and 0 without any)."""
+    config = make_agent(obs_size=3).config
+    torch.manual_seed(0)
+    model = WorldModel(obs_size=3, action_size=2, config=config)
+    with torch.no_grad():  # predictions that differ from step to step
+        for head in (model.reward_head, model.continue_head):
+            head.out.weight.normal_(0.0, 0.5)
+    k = torch.arange(12).remainder(6).float()
+    batch = {
+        "obs": torch.stack((k, torch.ones(12), -torch.ones(12)), -1).unsqueeze(0).repeat(2, 1, 1),
+        "action": torch.zeros(2, 12, 2),
+        "reward": torch.where(k == 5, -50.0, 1.0).unsqueeze(0).repeat(2, 1),
+        "is_first": (k == 0).unsqueeze(0).repeat(2, 1),
+        "is_terminal": (k == 5).unsqueeze(0).repeat(2, 1),
+    }
+    out = model.loss(batch, torch.Generator().manual_seed(0))
+    terminal = batch["is_terminal"]
+    with torch.no_grad():
+        cont = model.continue_prob(out.observed.latent)[terminal]
+        error = (symlog(model.reward(out.observed.latent)) - symlog(batch["reward"])).abs()[terminal]
+    assert out.metrics["wm/terminal_steps"].item() == 4.0
+    assert out.metrics["wm/terminal_continue"].item() == pytest.approx(cont.mean().item(), rel=1e-5)
+    assert out.metrics["wm/terminal_reward_error"].item() == pytest.approx(error.mean().item(), rel=1e-5)
+    assert error.mean().item() > 1.0  # an untrained model is far from the -50 penalty
+    none = model.loss({**batch, "is_terminal": torch.zeros_like(terminal)}, torch.Generator().manual_seed(0))
+    assert none.metrics["wm/terminal_steps"].item() == 0.0 and none.metrics["wm/terminal_continue"].item() == 0.0

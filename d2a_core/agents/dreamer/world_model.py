@@ -98,11 +98,11 @@ class WorldModel(nn.Module):
         decoder_pre, reward_pre, continue_pre = first_layers(latent, heads)
 
         decoder_loss = (self.decoder.finish(decoder_pre).float() - symlog(obs)).square().sum(-1)
-        reward_loss = self.twohot.loss(self.reward_head.finish(reward_pre), batch["reward"])
+        reward_logits = self.reward_head.finish(reward_pre)
+        reward_loss = self.twohot.loss(reward_logits, batch["reward"])
         continue_target = 1.0 - batch["is_terminal"].float()
-        continue_loss = F.binary_cross_entropy_with_logits(
-            self.continue_head.finish(continue_pre).squeeze(-1).float(), continue_target, reduction="none"
-        )
+        continue_logits = self.continue_head.finish(continue_pre).squeeze(-1).float()
+        continue_loss = F.binary_cross_entropy_with_logits(continue_logits, continue_target, reduction="none")
         kl_loss, dyn, rep = kl_balance(
             observed.post_logits, observed.prior_logits, c.unimix, c.free_nats, c.kl_dyn_scale, c.kl_rep_scale
         )
@@ -118,6 +118,7 @@ class WorldModel(nn.Module):
             "wm/continue_loss": continue_loss.mean(),
             "wm/kl_dyn": dyn.mean(),
             "wm/kl_rep": rep.mean(),
+            **self._terminal_fit(reward_logits, continue_logits, batch),
         }
         for name, head in self.extra_heads.items():
             head_loss = self._head_loss(name, head, latent, batch)
@@ -128,6 +129,19 @@ class WorldModel(nn.Module):
         return WorldModelOutput(
             loss=loss, metrics={k: v.detach() for k, v in metrics.items()}, observed=observed
         )
+
+    def _terminal_fit(self, reward_logits: Tensor, continue_logits: Tensor, batch: Mapping[str, Tensor]) -> dict:
+        """How well the heads know the episode ends, the rare steps that carry a crash's penalty
+        or the finish bonus (0 when the batch holds none): the mean predicted continue probability
+        there (0 is perfect) and the reward error in symlog units."""
+        with torch.no_grad():
+            terminal = batch["is_terminal"].float()
+            count = terminal.sum()
+            denominator = count.clamp(min=1.0)
+            cont = (torch.sigmoid(continue_logits) * terminal).sum() / denominator
+            predicted = symlog(self.twohot.mean(reward_logits.float()))
+            error = ((predicted - symlog(batch["reward"].float())).abs() * terminal).sum() / denominator
+        return {"wm/terminal_steps": count, "wm/terminal_continue": cont, "wm/terminal_reward_error": error}
 
     @staticmethod
     def _head_loss(name: str, head: WorldModelHead, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
