@@ -7,8 +7,8 @@ Notation: `s` distance along the centreline, `e` lateral offset (positive = left
          + r_finish * I(finish), D = how far the opponent still drives until the time limit
 - pass:  c_pass * (ds_t - ds_{t-1}) * I(|ds_t| <= W_pass or |ds_{t-1}| <= W_pass)
 - stay:  (s_t - s_{t-1}) + c_stay * (ds_t - ds_{t-1}) * I(|ds_t| <= W_stay or |ds_{t-1}| <= W_stay)
-- left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin)
-- right: c_side * (ds_t - ds_{t-1}) * I(pass window) - (de_t + c_margin)
+- left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin) * I(opponent racing)
+- right: c_side * (ds_t - ds_{t-1}) * I(pass window) - (de_t + c_margin) * I(opponent racing)
 """
 
 from __future__ import annotations
@@ -46,6 +46,13 @@ class RewardConfig(Section):
     stay_window_m: float = Field(50.0, gt=0, description="s_high = -s_low of the stay indicator")
     c_side: float = Field(1.0, description="scale of the passing term of the left/right intents")
     c_margin: float = Field(0.3, description="lateral margin added to de_t by the left/right intents")
+    # The paper pays the side term on every step. Once the opponent has finished there is no
+    # "its left" any more, and a car parked beside the start grid would go on collecting
+    # (de + c_margin) until the time limit: our quick left drivers learnt exactly that (a parked
+    # car out-earned a finishing one). False restores the paper's literal formula.
+    side_only_while_racing: bool = Field(
+        True, description="pay the left/right side term only while the opponent is still racing"
+    )
 
 
 @dataclass(frozen=True)
@@ -61,6 +68,7 @@ class StepQuantities:
     off_track: bool
     finished: bool
     remaining_m: float = 0.0  # distance the opponent still drives until the time limit
+    opponent_racing: bool = True  # False once the opponent's replay has reached its end
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,7 @@ def reward_terms(q: StepQuantities, cfg: RewardConfig) -> RewardTerms:
     progress = q.s - q.s_prev
     passing = _windowed_delta(q, cfg.pass_window_m)
     side = cfg.c_side * passing
+    bias = (q.de + cfg.c_margin) if (q.opponent_racing or not cfg.side_only_while_racing) else 0.0
     return RewardTerms(
         collision=collision,
         bounds=bounds,
@@ -125,6 +134,6 @@ def reward_terms(q: StepQuantities, cfg: RewardConfig) -> RewardTerms:
         progress=progress,
         pass_=cfg.c_pass * passing,
         stay=progress + cfg.c_stay * _windowed_delta(q, cfg.stay_window_m),
-        left=side + (q.de + cfg.c_margin),
-        right=side - (q.de + cfg.c_margin),
+        left=side + bias,
+        right=side - bias,
     )

@@ -194,7 +194,7 @@ class RaceEnv(gym.Env):
         collision = car_hit or barrier_hit
         q = StepQuantities(s=self._s, s_prev=s_prev, ds=self._ds, ds_prev=ds_prev, de=self._e - self._opp_e,
                            collision=collision, off_track=off_track and not collision, finished=finished and not collision,
-                           remaining_m=self._opp_s_at_limit - self._opp_s)
+                           remaining_m=self._opp_s_at_limit - self._opp_s, opponent_racing=self._opp_racing)
         terms = reward_terms(q, self.reward_cfg)
         reward = terms.human(self.intent)
         terminated = collision or off_track or finished

@@ -52,6 +52,16 @@ def test_left_and_right_are_passing_plus_side_bias():
     assert t.left == pytest.approx(-1.7) and t.right == pytest.approx(1.7)
 
 
+def test_side_term_stops_when_the_opponent_has_finished():
+    """After the opponent's race is over only the passing part remains, so a parked car cannot
+    keep earning its side bias until the time limit; the paper's literal formula on request."""
+    done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), CFG)
+    assert done.left == pytest.approx(1.0) and done.right == pytest.approx(1.0)
+    literal = RewardConfig(side_only_while_racing=False)
+    done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), literal)
+    assert done.left == pytest.approx(1.0 + 5.3) and done.right == pytest.approx(1.0 - 5.3)
+
+
 def test_task_terms_and_human_reward():
     t = reward_terms(q(collision=True), CFG)
     assert t.collision == CFG.collision and t.task == CFG.collision

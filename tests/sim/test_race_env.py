@@ -139,13 +139,32 @@ def test_reward_is_task_plus_intent_term_from_info(straight, intent):
         d_ds = info["ds"] - prev["ds"]
         passing = d_ds if (abs(info["ds"]) <= cfg.pass_window_m or abs(prev["ds"]) <= cfg.pass_window_m) else 0.0
         staying = d_ds if (abs(info["ds"]) <= cfg.stay_window_m or abs(prev["ds"]) <= cfg.stay_window_m) else 0.0
+        side = (info["de"] + cfg.c_margin) if info["opponent_racing"] else 0.0
         expected = {
             "pass": cfg.c_pass * passing,
             "stay": (info["s"] - prev["s"]) + cfg.c_stay * staying,
-            "left": passing + (info["de"] + cfg.c_margin),
-            "right": passing - (info["de"] + cfg.c_margin),
+            "left": passing + side,
+            "right": passing - side,
         }[intent]
         assert reward == pytest.approx(info["reward_terms"]["task"] + expected, abs=1e-9)
+
+
+def test_a_parked_left_driver_stops_earning_its_side_bias_when_the_opponent_finishes(straight):
+    env = RaceEnv(straight, intent="left", env_config=EnvConfig(time_limit_s=40.0))
+    obs, info = env.reset(seed=0, options={"ego_e": 5.0})  # parked well left of the opponent
+    racing, finished = [], []
+    for _ in range(400):
+        prev = info
+        obs, reward, terminated, truncated, info = env.step(np.array([0.0, -1.0]))
+        window = RewardConfig().pass_window_m
+        inside = abs(info["ds"]) <= window or abs(prev["ds"]) <= window
+        passing = info["ds"] - prev["ds"] if inside else 0.0
+        (racing if info["opponent_racing"] else finished).append(reward - passing)
+        if terminated or truncated:
+            break
+    assert truncated and racing and finished
+    assert min(racing) > 0.3  # left of the opponent while it races: de + 0.3 per step
+    assert max(abs(r) for r in finished) < 1e-9  # afterwards only the passing term
 
 
 def test_seeded_reset_is_reproducible(hairpin):
