@@ -153,10 +153,10 @@ def test_a_parked_left_driver_stops_earning_its_side_bias_when_the_opponent_fini
     env = RaceEnv(straight, intent="left", env_config=EnvConfig(time_limit_s=40.0))
     obs, info = env.reset(seed=0, options={"ego_e": 5.0})  # parked well left of the opponent
     racing, finished = [], []
+    window = RewardConfig().pass_window_m
     for _ in range(400):
         prev = info
         obs, reward, terminated, truncated, info = env.step(np.array([0.0, -1.0]))
-        window = RewardConfig().pass_window_m
         inside = abs(info["ds"]) <= window or abs(prev["ds"]) <= window
         passing = info["ds"] - prev["ds"] if inside else 0.0
         (racing if info["opponent_racing"] else finished).append(reward - passing)

@@ -130,7 +130,7 @@ class WorldModel(nn.Module):
             loss=loss, metrics={k: v.detach() for k, v in metrics.items()}, observed=observed
         )
 
-    def _terminal_fit(self, reward_logits: Tensor, continue_logits: Tensor, batch: Mapping[str, Tensor]) -> dict:
+    def _terminal_fit(self, reward_logits: Tensor, continue_logits: Tensor, batch: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """How well the heads know the episode ends, the rare steps that carry a crash's penalty
         or the finish bonus (0 when the batch holds none): the mean predicted continue probability
         there (0 is perfect) and the reward error in symlog units."""
