@@ -7,8 +7,9 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 
-from d2a_core.agents.dreamer.behavior import Behavior, ReturnNormalizer, lambda_returns
+from d2a_core.agents.dreamer.behavior import Behavior, ReturnNormalizer, frozen, lambda_returns
 from d2a_core.agents.dreamer.distributions import TwoHot, symlog
 from d2a_core.agents.dreamer.latent import Latent
 from d2a_core.agents.dreamer.world_model import WorldModel, kl_balance
@@ -253,3 +254,53 @@ def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(m
     assert error.mean().item() > 1.0  # an untrained model is far from the -50 penalty
     none = model.loss({**batch, "is_terminal": torch.zeros_like(terminal)}, torch.Generator().manual_seed(0))
     assert none.metrics["wm/terminal_steps"].item() == 0.0 and none.metrics["wm/terminal_continue"].item() == 0.0
+
+
+def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random):
+    """The fused readouts inside the imagination loop (actor, reward and critic first layers
+    with gradient, the continue head without, the last state read without the actor) must give
+    the rewards, continue flags, values and actor gradients of evaluating every head on every
+    imagined state separately."""
+
+    agent = make_agent(seed=3)
+    fill_random(agent, 40)
+    for _ in range(3):  # trained heads: zero-initialised output layers would hide mistakes
+        agent.train_step()
+    behavior, world_model = agent.behavior, agent.world_model
+    batch = {k: torch.as_tensor(v) for k, v in agent.replay.sample(4, 8).items()}
+    start = world_model.loss(batch, torch.Generator().manual_seed(0)).observed.latent.detach().reshape(-1)
+    horizon, n = agent.config.imag_horizon, start.h.shape[0]
+    actor_params = list(behavior.actor.parameters())
+
+    imagined, reward, cont, values = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
+    fused_grads = torch.autograd.grad(reward.sum() + values.sum() + imagined.extras["entropy"].sum(), actor_params)
+
+    generator = torch.Generator().manual_seed(5)
+    noise = iter(behavior.actor.noise((horizon, n), generator, start.h.device))
+    classes = agent.config.classes
+
+    def dense_mlp(mlp, state):
+        weight = torch.cat((mlp.first.dense_weight, mlp.first.table.t()), 1)
+        return mlp.finish(F.linear(state.dense(classes), weight))
+
+    def policy(latent, first):
+        assert first is None
+        action, entropy = behavior.actor.sample_from_output(dense_mlp(behavior.actor.net, latent), next(noise))
+        return action, {"entropy": entropy}
+
+    with frozen(world_model, behavior.critic):
+        plain = world_model.rssm.imagine(policy, start, horizon, generator)
+        states = plain.states
+        plain_reward = torch.stack([world_model.twohot.mean(dense_mlp(world_model.reward_head, s)) for s in states[1:]])
+        plain_cont = torch.stack([(dense_mlp(world_model.continue_head, s).squeeze(-1) > 0).float() for s in states[1:]])
+        plain_values = torch.stack([behavior.twohot.mean(dense_mlp(behavior.critic, s)) for s in states])
+    plain_grads = torch.autograd.grad(
+        plain_reward.sum() + plain_values.sum() + plain.extras["entropy"].sum(), actor_params
+    )
+    assert torch.equal(torch.stack([s.index for s in imagined.states]), torch.stack([s.index for s in plain.states]))
+    assert torch.allclose(reward, plain_reward, atol=1e-5)
+    assert torch.equal(cont, plain_cont)
+    assert torch.allclose(values, plain_values, atol=1e-5)
+    for fused, reference in zip(fused_grads, plain_grads):
+        assert reference.abs().sum() > 0
+        assert torch.allclose(fused, reference, rtol=1e-4, atol=1e-6)

@@ -217,33 +217,35 @@ class Behavior(nn.Module):
         noise = iter(self.actor.noise((horizon, n), generator, start.h.device))
         actor_net = self.actor.net
 
-        def policy(latent: Latent, first: list[Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
-            raw = actor_net.finish(first[0]) if first else actor_net(latent)
+        def policy(latent: Latent, first: Tensor | None) -> tuple[Tensor, dict[str, Tensor]]:
+            raw = actor_net.finish(first) if first is not None else actor_net(latent)
             action, entropy = self.actor.sample_from_output(raw, next(noise))
             return action, {"entropy": entropy}
 
-        heads = [world_model.reward_head, world_model.continue_head, self.critic]
+        reward_head, continue_head = world_model.reward_head, world_model.continue_head
         with frozen(world_model, self.critic):
             if discrete:  # REINFORCE: no gradient through the imagined states
                 with torch.no_grad():
                     imagined = world_model.rssm.imagine(policy, start, horizon, generator)
-                readout = Readout(heads)
+                readout = Readout([reward_head, self.critic], None, [continue_head])
             else:  # heads read each state inside the loop, fused with the actor and the RSSM
-                imagined = world_model.rssm.imagine(policy, start, horizon, generator, [actor_net, *heads])
+                imagined = world_model.rssm.imagine(
+                    policy, start, horizon, generator, actor_net, [reward_head, self.critic], [continue_head]
+                )
             rewards, conts, values = [], [], []
             for steps in self._chunks(horizon + 1, n):
                 if discrete:
                     pres = readout(Latent.cat([s.detach() for s in imagined.states[steps]]))
                 else:
-                    pres = [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in (1, 2, 3)]
-                rewards.append(world_model.twohot.mean(world_model.reward_head.finish(pres[0])))
+                    pres = [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in range(3)]
+                rewards.append(world_model.twohot.mean(reward_head.finish(pres[0])))
+                values.append(self.twohot.mean(self.critic.finish(pres[1])))
                 # The continue head's mode, without gradient (as DreamerV3's reference code): a
                 # differentiable probability lets the actor lower its continuation wherever the
                 # future looks negative, i.e. learn to end episodes without paying the penalty
                 # that ends them in the real env (the penalty is in the reward, not in cont).
                 with torch.no_grad():
-                    conts.append((world_model.continue_head.finish(pres[1]).squeeze(-1) > 0).float())
-                values.append(self.twohot.mean(self.critic.finish(pres[2])))
+                    conts.append((continue_head.finish(pres[2]).squeeze(-1) > 0).float())
         reward = torch.cat(rewards).view(horizon + 1, n)[1:]
         cont = torch.cat(conts).view(horizon + 1, n)[1:]
         return imagined, reward, cont, torch.cat(values).view(horizon + 1, n)

@@ -129,15 +129,23 @@ class Readout:
     """First layers of several LatentMLPs (plus the z parts of other OneHotLinears, e.g. the
     RSSM's input layer) evaluated together on the same states: one matmul for all h parts and
     one embedding-bag for all z parts (one backward matmul to the probabilities). Weights are
-    joined once at construction, so build one per use (weights change every update)."""
+    joined once at construction, so build one per use (weights change every update).
 
-    def __init__(self, mlps: list[LatentMLP], extra_tables: list[Tensor] | None = None) -> None:
+    `value_only` MLPs are read in a separate pass without gradient: their outputs are used as
+    values only (e.g. the continue head's mode), and keeping their columns out of the fused
+    layer keeps them out of its backward matmul."""
+
+    def __init__(
+        self,
+        mlps: list[LatentMLP],
+        extra_tables: list[Tensor] | None = None,
+        value_only: list[LatentMLP] | None = None,
+    ) -> None:
         self.count = len(mlps)
         self.tables = [mlp.first.table for mlp in mlps] + (extra_tables or [])
-        device = self.tables[0].device
-        with torch.no_grad():
-            self.joined = _compute_dtype(torch.cat(self.tables, 1) if len(self.tables) > 1 else self.tables[0], device)
         self.table_sizes = [table.shape[1] for table in self.tables]
+        device = (self.tables or [m.first.table for m in value_only or []])[0].device
+        self.joined = _compute_dtype(_join([t.detach() for t in self.tables], 1), device) if self.tables else None
         # The h parts are joined separately for weights that need gradients and those that do
         # not (e.g. the frozen world model's heads in imagination): one joined weight would get
         # a full weight gradient, most of it thrown away.
@@ -146,21 +154,38 @@ class Readout:
         for wanted in (True, False):
             members = [k for k, w in enumerate(weights) if w.requires_grad == wanted]
             if members:
-                joined = torch.cat([weights[k] for k in members], 0) if len(members) > 1 else weights[members[0]]
-                self.groups.append((members, joined, [weights[k].shape[0] for k in members]))
+                self.groups.append((members, _join([weights[k] for k in members], 0), [weights[k].shape[0] for k in members]))
+        self.value_sizes = [mlp.first.table.shape[1] for mlp in value_only or []]
+        if value_only:
+            with torch.no_grad():
+                self.value_table = _compute_dtype(_join([m.first.table for m in value_only], 1), device)
+                self.value_weight = _join([m.first.dense_weight for m in value_only], 0)
 
     def __call__(self, latent: Latent) -> list[Tensor]:
-        """Outputs for each MLP's first layer (..., units), then each extra table's z part."""
+        """Outputs for each MLP's first layer (..., units), then each extra table's z part, then
+        each value-only MLP's first layer (without gradient)."""
         lead = latent.index.shape[:-1]
         index = latent.index.reshape(-1, latent.index.shape[-1])
-        probs = _flat_probs(latent.probs, index)
-        sparse = _OneHotMatmul.apply(index, probs, self.joined, *self.tables)
-        sparse = sparse.reshape(*lead, sparse.shape[-1]).split(self.table_sizes, -1)
-        dense: list[Tensor | None] = [None] * self.count
-        for members, weight, sizes in self.groups:
-            for k, part in zip(members, F.linear(latent.h, weight).split(sizes, -1)):
-                dense[k] = part
-        return [d + s for d, s in zip(dense, sparse)] + list(sparse[self.count :])
+        outputs: list[Tensor] = []
+        if self.tables:
+            probs = _flat_probs(latent.probs, index)
+            sparse = _OneHotMatmul.apply(index, probs, self.joined, *self.tables)
+            sparse = sparse.reshape(*lead, sparse.shape[-1]).split(self.table_sizes, -1)
+            dense: list[Tensor | None] = [None] * self.count
+            for members, weight, sizes in self.groups:
+                for k, part in zip(members, F.linear(latent.h, weight).split(sizes, -1)):
+                    dense[k] = part
+            outputs = [d + s for d, s in zip(dense, sparse)] + list(sparse[self.count :])
+        if self.value_sizes:
+            with torch.no_grad():
+                values = F.embedding_bag(index, self.value_table, mode="sum").reshape(*lead, -1)
+                values = values + F.linear(latent.h, self.value_weight)
+            outputs += list(values.split(self.value_sizes, -1))
+        return outputs
+
+
+def _join(tensors: list[Tensor], dim: int) -> Tensor:
+    return torch.cat(tensors, dim) if len(tensors) > 1 else tensors[0]
 
 
 def _flat_probs(probs: Tensor | None, flat_index: Tensor) -> Tensor:

@@ -21,9 +21,10 @@ from .distributions import unimix_probs
 from .latent import Latent, LatentMLP, OneHotLinear, Readout
 from .nets import NormLayer, init_linear_
 
-ImaginationPolicy = Callable[[Latent, list[Tensor]], tuple[Tensor, dict[str, Tensor]]]
-"""Maps a state of leading shape (N,) and the first-layer outputs of the readout MLPs at that
-state (see `RSSM.imagine`) to (action (N, A), extras to stack over time)."""
+ImaginationPolicy = Callable[[Latent, Tensor | None], tuple[Tensor, dict[str, Tensor]]]
+"""Maps a state of leading shape (N,) and the first-layer output of the policy's MLP at that
+state (None unless `RSSM.imagine` was given the MLP) to (action (N, A), extras to stack over
+time)."""
 
 
 @dataclass
@@ -44,7 +45,7 @@ class Imagined:
     states: list[Latent]  # H+1 states of leading shape (N,)
     actions: Tensor  # (H, N, A)
     extras: dict[str, Tensor]  # each (H, N, ...)
-    readouts: list[list[Tensor]]  # per state: the first-layer outputs (N, units) of each readout MLP
+    readouts: list[list[Tensor]]  # per state: first-layer outputs (N, units) of the readouts, then the value readouts
 
     @property
     def latent(self) -> Latent:
@@ -176,34 +177,44 @@ class RSSM(nn.Module):
         start: Latent,
         horizon: int,
         generator: torch.Generator | None,
+        policy_readout: LatentMLP | None = None,
         readouts: list[LatentMLP] | None = None,
+        value_readouts: list[LatentMLP] | None = None,
     ) -> Imagined:
         """Roll the prior forward `horizon` steps from `start` (leading shape (N,)) with actions
         from `policy`. Gradients flow through states, straight-through samples and actions.
 
-        `readouts` are MLPs that read every imagined state (e.g. actor, reward, critic): their
-        first layers are evaluated inside the loop, fused with each other and with the RSSM's
-        input layer (one matmul per state for all of them, forward and backward, on tensors
-        that stay in cache), and returned stacked for the caller to finish the MLPs."""
-        readouts = readouts or []
-        fused = Readout(readouts, [self.img_in.table]) if readouts else None
-        last = Readout(readouts) if readouts else None
+        MLPs that read imagined states have their first layers evaluated inside the loop, fused
+        with each other and with the RSSM's input layer (one matmul per state for all of them,
+        forward and backward, on tensors that stay in cache): `policy_readout` (the actor's MLP,
+        read at states 0..H-1 and handed to `policy`), `readouts` (read at every state with
+        gradient, e.g. reward and critic) and `value_readouts` (read at every state without
+        gradient, e.g. the continue head's mode). The last two are returned per state for the
+        caller to finish the MLPs."""
+        readouts, value_readouts = readouts or [], value_readouts or []
+        fused_mlps = ([policy_readout] if policy_readout is not None else []) + readouts
+        fused = Readout(fused_mlps, [self.img_in.table], value_readouts) if fused_mlps else None
+        last = Readout(readouts, None, value_readouts) if readouts or value_readouts else None
+        skip = len(fused_mlps) - len(readouts)  # the policy's output is not a returned readout
         uniform = self.uniform((horizon, start.h.shape[0]), generator, start.h.device)
         latent = start
         states, actions, extras, pres = [start], [], [], []
-        for t in range(horizon + 1):
-            z_part = None
-            if readouts:
-                outs = (fused if t < horizon else last)(latent)
-                pres.append(outs[: len(readouts)])
-                z_part = outs[len(readouts)] if t < horizon else None
-            if t == horizon:
-                break
-            action, extra = policy(latent, pres[-1] if readouts else [])
+        for t in range(horizon):
+            z_part, policy_pre = None, None
+            if fused is not None:
+                outs = fused(latent)
+                z_part = outs[len(fused_mlps)]
+                policy_pre = outs[0] if skip else None
+                pres.append(outs[skip : len(fused_mlps)] + outs[len(fused_mlps) + 1 :])
+            elif last is not None:
+                pres.append(last(latent))
+            action, extra = policy(latent, policy_pre)
             h = self.step(latent, action, z_part)
             latent = self.sample(h, self.prior_logits(h), uniform[t])
             states.append(latent)
             actions.append(action)
             extras.append(extra)
+        if last is not None:
+            pres.append(last(latent))
         stacked_extras = {key: torch.stack([e[key] for e in extras]) for key in (extras[0] if extras else {})}
         return Imagined(states=states, actions=torch.stack(actions), extras=stacked_extras, readouts=pres)
