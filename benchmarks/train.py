@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from d2a_core.agents.dreamer import DreamerAgent, DreamerConfig
+from d2a_core.training.allocator import keep_freed_memory
 
 
 def _fill_replay(agent: DreamerAgent, steps: int, envs: int, seed: int) -> None:
@@ -170,11 +171,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--loop-steps", type=int, default=0, help="time the full training loop instead")
     parser.add_argument("--train-ratio", type=float, default=64.0, help="replayed steps per env step (loop)")
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc's malloc untuned (training tunes it, see d2a_core/training/allocator.py)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    malloc_tuned = False if args.default_malloc else keep_freed_memory()
     if args.loop_steps:
         report = {**full_loop(args), "precision": args.precision, "device": args.device, "threads": args.threads,
-                  "torch": torch.__version__, "load_average_after": os.getloadavg()}
+                  "malloc_tuned": malloc_tuned, "torch": torch.__version__, "load_average_after": os.getloadavg()}
         json.dump(report, sys.stdout, indent=2)
         print()
         return 0
@@ -187,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         "precision": args.precision,
         "device": args.device,
         "threads": args.threads,
+        "malloc_tuned": malloc_tuned,
         "torch": torch.__version__,
         "python": platform.python_version(),
         "load_average_after": os.getloadavg(),

@@ -39,6 +39,7 @@ from d2a_core.pipelines.make_track import opponents_of
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.sim.replay import OpponentReplay
 from d2a_core.tracks.track import Track
+from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.rollout import Collector, evaluate
 
@@ -137,6 +138,7 @@ def train_population(
 
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
+    keep_freed_memory()
     dreamer_cfg = cfg.dreamer.model_copy(update={"device": device})
 
     def make_env() -> RaceEnv:
