@@ -135,8 +135,13 @@ def test_onehot_linear_equals_dense_linear_on_straight_through_samples():
     assert torch.allclose(loss, dense_loss, rtol=1e-5)
     for fast, slow in zip(grads, dense_grads):
         assert torch.allclose(fast, slow, rtol=1e-4, atol=1e-5)
-    # Single-module forward agrees with the fused one.
+    # Single-module forward (few rows: the dense one-hot path) agrees with the fused one.
     assert torch.allclose(mlps[1](latent), mlps[1].finish(fused[1]), atol=1e-6)
+    single = torch.autograd.grad((mlps[1](latent) ** 2).sum(), [latent.h, latent.probs, mlps[1].first.table])
+    fused_single = torch.autograd.grad((mlps[1].finish(Readout(mlps[1:])(latent)[0]) ** 2).sum(),
+                                       [latent.h, latent.probs, mlps[1].first.table])
+    for a, b in zip(single, fused_single):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-6)
 
 
 def test_table_gradient_paths_agree_for_small_and_large_batches():

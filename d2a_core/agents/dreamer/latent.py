@@ -23,6 +23,8 @@ from .nets import NormLayer, init_linear_
 
 # Above this many repeated gradient elements, table_gradient loops over latents instead.
 _REPEAT_MAX_ELEMENTS = 1 << 18
+# Up to this many rows, OneHotLinear uses a dense one-hot matmul instead of the embedding-bag.
+DENSE_MAX_ROWS = 64
 
 
 class Latent(NamedTuple):
@@ -227,6 +229,14 @@ class OneHotLinear(nn.Module):
         """The z part of the layer's output; `table` from `compute_table` saves re-casting it."""
         lead = index.shape[:-1]
         flat_index = index.reshape(-1, index.shape[-1])
+        if flat_index.shape[0] <= DENSE_MAX_ROWS:
+            # Few rows (the world model's filtering step, acting): the dense straight-through
+            # matmul costs less than the custom function's Python forward and backward.
+            onehot = torch.zeros(flat_index.shape[0], self.table.shape[0], device=index.device, dtype=self.table.dtype)
+            onehot.scatter_(1, flat_index, 1.0)
+            if probs is not None:
+                onehot = straight_through(onehot, probs.reshape(onehot.shape).to(onehot.dtype))
+            return (onehot @ self.table).reshape(*lead, self.table.shape[1])
         joined = self.compute_table() if table is None else table
         sparse = _OneHotMatmul.apply(flat_index, _flat_probs(probs, flat_index), joined, self.table)
         return sparse.reshape(*lead, sparse.shape[-1])
