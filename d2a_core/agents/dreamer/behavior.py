@@ -31,10 +31,10 @@ from .world_model import WorldModel
 
 
 # Time steps of imagined states are processed in groups whose largest activation stays below
-# this many bytes. glibc serves allocations above 32 MiB with fresh mmap()s, and touching fresh
-# pages costs more than the arithmetic (a LayerNorm on 16384 x 512 floats ran 6x slower than on
-# 15360 x 512); keeping tensors smaller also keeps them in cache.
-CHUNK_BYTES = 4 << 20
+# this many bytes (at 128 units the whole horizon is one group; at 512 units, two). Fewer groups
+# mean fewer, larger ops; the bound keeps each tensor below glibc's mmap threshold (32 MiB, see
+# d2a_core/training/allocator.py), above which every allocation would map and fault fresh pages.
+CHUNK_BYTES = 16 << 20
 
 
 def lambda_returns(rewards: Tensor, discounts: Tensor, values: Tensor, lam: float) -> Tensor:
