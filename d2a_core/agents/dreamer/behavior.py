@@ -265,8 +265,10 @@ class Behavior(nn.Module):
             with torch.no_grad():
                 slow_values = self.twohot.mean(self.slow_critic(before))
             chunk_target = target[steps].reshape(-1)
+            bins_log_probs = torch.log_softmax(logits.float(), dim=-1)
             critic_losses.append(
-                self.twohot.loss(logits, chunk_target) + c.slow_critic_reg * self.twohot.loss(logits, slow_values)
+                self.twohot.loss_from_log_probs(bins_log_probs, chunk_target)
+                + c.slow_critic_reg * self.twohot.loss_from_log_probs(bins_log_probs, slow_values)
             )
             if self.actor.discrete:
                 actions = imagined.actions[steps].reshape(-1, self.actor.action_size)

@@ -61,7 +61,11 @@ class TwoHot:
 
     def loss(self, logits: Tensor, target: Tensor) -> Tensor:
         """Cross-entropy of `logits` (..., num_bins) against the two-hot code of `target` (...)."""
-        log_probs = torch.log_softmax(logits.float(), dim=-1)
+        return self.loss_from_log_probs(torch.log_softmax(logits.float(), dim=-1), target)
+
+    def loss_from_log_probs(self, log_probs: Tensor, target: Tensor) -> Tensor:
+        """`loss` given log_softmax(logits): several targets of the same prediction (the critic's
+        return and slow-critic targets) share one log-softmax."""
         lower, upper_weight = self._position(target.detach().float())
         both = torch.stack((lower, lower + 1), dim=-1)
         picked = log_probs.gather(-1, both)
