@@ -260,7 +260,7 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     """The fused readouts inside the imagination loop (actor, reward and critic first layers
     with gradient, the continue head without, the last state read without the actor) must give
     the rewards, continue flags, values and actor gradients of evaluating every head on every
-    imagined state separately."""
+    imagined state separately, as a dense layer on concat(h, straight-through one-hot z)."""
 
     agent = make_agent(seed=3)
     fill_random(agent, 40)
