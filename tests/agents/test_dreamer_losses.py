@@ -272,8 +272,10 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     horizon, n = agent.config.imag_horizon, start.h.shape[0]
     actor_params = list(behavior.actor.parameters())
 
-    imagined, reward, cont, values = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
-    fused_grads = torch.autograd.grad(reward.sum() + values.sum() + imagined.extras["entropy"].sum(), actor_params)
+    imagined, reward, cont, values, critic_logits = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
+    fused_grads = torch.autograd.grad(
+        reward.sum() + values.sum() + imagined.extras["entropy"].sum(), actor_params, retain_graph=True
+    )
 
     generator = torch.Generator().manual_seed(5)
     noise = iter(behavior.actor.noise((horizon, n), generator, start.h.device))
@@ -304,3 +306,16 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     for fused, reference in zip(fused_grads, plain_grads):
         assert reference.abs().sum() > 0
         assert torch.allclose(fused, reference, rtol=1e-4, atol=1e-6)
+
+    # The critic's logits also carry its weight gradient, as the critic evaluated afresh on
+    # detached states (every parameter, the first layer's weight and table included).
+    critic_params = list(behavior.critic.parameters())
+    detached = Latent.cat([s.detach() for s in imagined.states])
+    reference_logits = dense_mlp(behavior.critic, detached)
+    probe = torch.randn(critic_logits.shape, generator=torch.Generator().manual_seed(9))
+    assert torch.allclose(critic_logits, reference_logits, atol=1e-5)
+    merged = torch.autograd.grad((critic_logits * probe).sum(), critic_params)
+    reference = torch.autograd.grad((reference_logits * probe).sum(), critic_params)
+    for a, b in zip(merged, reference):
+        assert b.abs().sum() > 0
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)

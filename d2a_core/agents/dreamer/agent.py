@@ -216,8 +216,11 @@ class DreamerAgent:
         critic_params = list(self.behavior.critic.parameters())
         self.actor_opt.zero_grad(set_to_none=True)
         self.critic_opt.zero_grad(set_to_none=True)
-        # The two losses share no parameters' gradient paths (see Behavior.losses).
-        (beh.actor_loss + beh.critic_loss).backward()
+        # One forward pass serves both losses, so each is differentiated only with respect to
+        # its own parameters: the critic's loss must not move the imagined states (the actor),
+        # and the actor's returns must not train the critic (see Behavior._imagine).
+        torch.autograd.backward(beh.actor_loss, inputs=actor_params, retain_graph=True)
+        torch.autograd.backward(beh.critic_loss, inputs=critic_params)
         actor_norm = self._clip(actor_params, c.actor_grad_clip, "actor")
         critic_norm = self._clip(critic_params, c.critic_grad_clip, "critic")
         self.actor_opt.step()

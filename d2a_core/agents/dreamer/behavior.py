@@ -204,13 +204,16 @@ class Behavior(nn.Module):
 
     def _imagine(
         self, world_model: WorldModel, start: Latent, generator: torch.Generator | None
-    ) -> tuple[Imagined, Tensor, Tensor, Tensor]:
+    ) -> tuple[Imagined, Tensor, Tensor, Tensor, Tensor]:
         """Roll out the actor in the frozen world model; return the rollout, rewards and
-        continue flags (0/1) of states 1..H (H, N) and critic values of states 0..H (H+1, N).
+        continue flags (0/1) of states 1..H (H, N), critic values of states 0..H (H+1, N) and
+        the critic's logits there ((H+1) * N, bins).
 
-        The critic is frozen here too: its values only pass gradients to the actor through the
-        imagined states. It learns from its own pass on detached states
-        (`_critic_and_policy_terms`), so one backward pass serves both losses."""
+        The critic is evaluated once: its first layer is read inside the imagination loop with
+        frozen weights (gradient to the states, for the actor's returns), and
+        `LatentMLP.with_weight_gradient` adds the path to its weights for the critic's own loss,
+        as on detached states. Each loss is then differentiated with respect to its own
+        parameters only (see `DreamerAgent.train_step`)."""
         c = self.config
         horizon, n = c.imag_horizon, start.h.shape[0]
         discrete = self.actor.discrete
@@ -223,45 +226,50 @@ class Behavior(nn.Module):
             return action, {"entropy": entropy}
 
         reward_head, continue_head = world_model.reward_head, world_model.continue_head
-        with frozen(world_model, self.critic):
-            if discrete:  # REINFORCE: no gradient through the imagined states
-                with torch.no_grad():
-                    imagined = world_model.rssm.imagine(policy, start, horizon, generator)
-                readout = Readout([reward_head, self.critic], None, [continue_head])
-            else:  # heads read each state inside the loop, fused with the actor and the RSSM
-                imagined = world_model.rssm.imagine(
-                    policy, start, horizon, generator, actor_net, [reward_head, self.critic], [continue_head]
-                )
-            rewards, conts, values = [], [], []
-            for steps in self._chunks(horizon + 1, n):
-                if discrete:
-                    pres = readout(Latent.cat([s.detach() for s in imagined.states[steps]]))
-                else:
-                    pres = [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in range(3)]
+        chunks = self._chunks(horizon + 1, n)
+        with frozen(world_model):
+            with frozen(self.critic.first):
+                if discrete:  # REINFORCE: no gradient through the imagined states
+                    with torch.no_grad():
+                        imagined = world_model.rssm.imagine(policy, start, horizon, generator)
+                    readout = Readout([reward_head, self.critic], None, [continue_head])
+                    chunk_pres = [readout(Latent.cat([s.detach() for s in imagined.states[steps]])) for steps in chunks]
+                else:  # heads read each state inside the loop, fused with the actor and the RSSM
+                    imagined = world_model.rssm.imagine(
+                        policy, start, horizon, generator, actor_net, [reward_head, self.critic], [continue_head]
+                    )
+                    chunk_pres = [
+                        [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in range(3)] for steps in chunks
+                    ]
+            rewards, conts, critic_logits = [], [], []
+            for steps, pres in zip(chunks, chunk_pres):
                 rewards.append(world_model.twohot.mean(reward_head.finish(pres[0])))
-                values.append(self.twohot.mean(self.critic.finish(pres[1])))
+                states = Latent.cat([s.detach() for s in imagined.states[steps]])
+                critic_logits.append(self.critic.finish(self.critic.with_weight_gradient(pres[1], states)))
                 # The continue head's mode, without gradient (as DreamerV3's reference code): a
                 # differentiable probability lets the actor lower its continuation wherever the
                 # future looks negative, i.e. learn to end episodes without paying the penalty
                 # that ends them in the real env (the penalty is in the reward, not in cont).
                 with torch.no_grad():
                     conts.append((continue_head.finish(pres[2]).squeeze(-1) > 0).float())
+        logits = torch.cat(critic_logits)
+        values = self.twohot.mean(logits).view(horizon + 1, n)
         reward = torch.cat(rewards).view(horizon + 1, n)[1:]
         cont = torch.cat(conts).view(horizon + 1, n)[1:]
-        return imagined, reward, cont, torch.cat(values).view(horizon + 1, n)
+        return imagined, reward, cont, values, logits
 
     def _critic_and_policy_terms(
-        self, imagined: Imagined, target: Tensor
+        self, imagined: Imagined, critic_logits: Tensor, target: Tensor
     ) -> tuple[Tensor, Tensor | None, Tensor]:
         """Per-step critic loss (two-hot NLL of the lambda-return `target` plus the regulariser
-        toward the slow critic's prediction) on detached states 0..H-1, and the actor's
-        log-probabilities (discrete actions only) and entropies, each (H, N)."""
+        toward the slow critic's prediction) from the critic's logits of states 0..H-1, and the
+        actor's log-probabilities (discrete actions only) and entropies, each (H, N)."""
         c = self.config
         horizon, n = target.shape
         critic_losses, log_probs, entropies = [], [], []
         for steps in self._chunks(horizon, n):
             before = Latent.cat([s.detach() for s in imagined.states[steps]])
-            logits = self.critic(before)
+            logits = critic_logits[steps.start * n : steps.stop * n]
             with torch.no_grad():
                 slow_values = self.twohot.mean(self.slow_critic(before))
             chunk_target = target[steps].reshape(-1)
@@ -295,13 +303,13 @@ class Behavior(nn.Module):
         if c.imag_starts is not None and c.imag_starts < n:
             pick = torch.randperm(n, generator=generator, device=start.h.device)[: c.imag_starts]
             start, start_continue, n = start.select(pick), start_continue[pick], c.imag_starts
-        imagined, reward, cont, values = self._imagine(world_model, start, generator)
+        imagined, reward, cont, values, critic_logits = self._imagine(world_model, start, generator)
 
         discounts = c.discount * cont
         returns = lambda_returns(reward, discounts, values, c.return_lambda)
         # Weight of step t: probability that the episode is still running there (no gradient).
         weights = torch.cumprod(torch.cat((start_continue.unsqueeze(0), discounts[:-1].detach()), 0), 0)
-        critic_per_step, log_prob, entropy = self._critic_and_policy_terms(imagined, returns.detach())
+        critic_per_step, log_prob, entropy = self._critic_and_policy_terms(imagined, critic_logits, returns.detach())
 
         low, high = self.return_norm.candidate(returns)
         scale = self.return_norm.scale(low, high)

@@ -112,6 +112,27 @@ class _OneHotMatmul(torch.autograd.Function):
         return (None, grad_probs, None, *grad_tables)
 
 
+class _FirstLayerWeightGradient(torch.autograd.Function):
+    """A zero of a first layer's output shape whose backward is the layer's weight gradient on
+    detached inputs (h, index). Added to the same layer's output computed with frozen weights
+    (e.g. inside the fused imagination readout), it lets one forward pass serve a loss that
+    trains the weights and another that trains the inputs (see `LatentMLP.with_weight_gradient`)."""
+
+    @staticmethod
+    def forward(ctx, h: Tensor, index: Tensor, dense_weight: Tensor, table: Tensor, dtype: torch.dtype) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(h, index)
+        ctx.rows = table.shape[0]
+        return h.new_zeros((), dtype=dtype).expand(h.shape[0], dense_weight.shape[0])
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):  # type: ignore[override]
+        h, index = ctx.saved_tensors
+        grad = grad.float()
+        grad_weight = grad.t() @ h.float() if ctx.needs_input_grad[2] else None
+        grad_table = table_gradient(index, ctx.rows, grad) if ctx.needs_input_grad[3] else None
+        return None, None, grad_weight, grad_table, None
+
+
 def table_gradient(index: Tensor, rows: int, grad: Tensor) -> Tensor:
     """Gradient of an embedding-bag's table: each row of `grad` (M, out) summed into the `stoch`
     table rows its bag used (index (M, stoch)). Small batches use one index_add over repeated
@@ -268,6 +289,21 @@ class LatentMLP(nn.Module):
     def finish(self, first_pre: Tensor) -> Tensor:
         """The rest of the MLP from the first layer's linear output."""
         return self.out(self.hidden(F.silu(self.first_norm(first_pre))))
+
+    def with_weight_gradient(self, first_pre: Tensor, latent: Latent) -> Tensor:
+        """`first_pre`, this MLP's first-layer output on `latent` computed with the layer frozen,
+        made to carry the layer's weight gradient as well: the gradient reaching the result goes
+        on to `first_pre`'s inputs (the states) and to the weights, computed as for detached
+        states. Callers keep the two apart by differentiating each loss only with respect to its
+        own parameters (`torch.autograd.backward(..., inputs=...)`)."""
+        zero = _FirstLayerWeightGradient.apply(
+            latent.h.detach().reshape(-1, latent.h.shape[-1]),
+            latent.index.reshape(-1, latent.index.shape[-1]),
+            self.first.dense_weight,
+            self.first.table,
+            first_pre.dtype,
+        )
+        return first_pre + zero.reshape(first_pre.shape)
 
 
 def first_layers(latent: Latent, mlps: list[LatentMLP]) -> list[Tensor]:
