@@ -272,7 +272,8 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     horizon, n = agent.config.imag_horizon, start.h.shape[0]
     actor_params = list(behavior.actor.parameters())
 
-    imagined, reward, cont, values, critic_logits = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
+    imagined, reward, cont, values, critic_chunks = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
+    critic_logits = torch.cat([logits for _, _, logits in critic_chunks])
     fused_grads = torch.autograd.grad(
         reward.sum() + values.sum() + imagined.extras["entropy"].sum(), actor_params, retain_graph=True
     )

@@ -204,10 +204,11 @@ class Behavior(nn.Module):
 
     def _imagine(
         self, world_model: WorldModel, start: Latent, generator: torch.Generator | None
-    ) -> tuple[Imagined, Tensor, Tensor, Tensor, Tensor]:
+    ) -> tuple[Imagined, Tensor, Tensor, Tensor, list[tuple[slice, Latent, Tensor]]]:
         """Roll out the actor in the frozen world model; return the rollout, rewards and
-        continue flags (0/1) of states 1..H (H, N), critic values of states 0..H (H+1, N) and
-        the critic's logits there ((H+1) * N, bins).
+        continue flags (0/1) of states 1..H (H, N), critic values of states 0..H (H+1, N) and,
+        per group of time steps over 0..H, the steps, their detached states and the critic's
+        logits there (for the critic's own loss).
 
         The critic is evaluated once: its first layer is read inside the imagination loop with
         frozen weights (gradient to the states, for the actor's returns), and
@@ -241,35 +242,39 @@ class Behavior(nn.Module):
                     chunk_pres = [
                         [torch.cat([p[k] for p in imagined.readouts[steps]]) for k in range(3)] for steps in chunks
                     ]
-            rewards, conts, critic_logits = [], [], []
+            rewards, conts, critic_chunks = [], [], []
             for steps, pres in zip(chunks, chunk_pres):
                 rewards.append(world_model.twohot.mean(reward_head.finish(pres[0])))
                 states = Latent.cat([s.detach() for s in imagined.states[steps]])
-                critic_logits.append(self.critic.finish(self.critic.with_weight_gradient(pres[1], states)))
+                logits = self.critic.finish(self.critic.with_weight_gradient(pres[1], states))
+                critic_chunks.append((steps, states, logits))
                 # The continue head's mode, without gradient (as DreamerV3's reference code): a
                 # differentiable probability lets the actor lower its continuation wherever the
                 # future looks negative, i.e. learn to end episodes without paying the penalty
                 # that ends them in the real env (the penalty is in the reward, not in cont).
                 with torch.no_grad():
                     conts.append((continue_head.finish(pres[2]).squeeze(-1) > 0).float())
-        logits = torch.cat(critic_logits)
-        values = self.twohot.mean(logits).view(horizon + 1, n)
+        values = self.twohot.mean(torch.cat([logits for _, _, logits in critic_chunks])).view(horizon + 1, n)
         reward = torch.cat(rewards).view(horizon + 1, n)[1:]
         cont = torch.cat(conts).view(horizon + 1, n)[1:]
-        return imagined, reward, cont, values, logits
+        return imagined, reward, cont, values, critic_chunks
 
     def _critic_and_policy_terms(
-        self, imagined: Imagined, critic_logits: Tensor, target: Tensor
+        self, imagined: Imagined, critic_chunks: list[tuple[slice, Latent, Tensor]], target: Tensor
     ) -> tuple[Tensor, Tensor | None, Tensor]:
         """Per-step critic loss (two-hot NLL of the lambda-return `target` plus the regulariser
-        toward the slow critic's prediction) from the critic's logits of states 0..H-1, and the
-        actor's log-probabilities (discrete actions only) and entropies, each (H, N)."""
+        toward the slow critic's prediction) from the critic's logits of states 0..H-1 (the
+        groups `_imagine` returns, without state H), and the actor's log-probabilities (discrete
+        actions only) and entropies, each (H, N)."""
         c = self.config
         horizon, n = target.shape
         critic_losses, log_probs, entropies = [], [], []
-        for steps in self._chunks(horizon, n):
-            before = Latent.cat([s.detach() for s in imagined.states[steps]])
-            logits = critic_logits[steps.start * n : steps.stop * n]
+        for chunk_steps, states, chunk_logits in critic_chunks:
+            steps = slice(chunk_steps.start, min(chunk_steps.stop, horizon))
+            rows = (steps.stop - steps.start) * n
+            if rows <= 0:
+                continue
+            before, logits = states.select(slice(0, rows)), chunk_logits[:rows]
             with torch.no_grad():
                 slow_values = self.twohot.mean(self.slow_critic(before))
             chunk_target = target[steps].reshape(-1)
@@ -303,13 +308,13 @@ class Behavior(nn.Module):
         if c.imag_starts is not None and c.imag_starts < n:
             pick = torch.randperm(n, generator=generator, device=start.h.device)[: c.imag_starts]
             start, start_continue, n = start.select(pick), start_continue[pick], c.imag_starts
-        imagined, reward, cont, values, critic_logits = self._imagine(world_model, start, generator)
+        imagined, reward, cont, values, critic_chunks = self._imagine(world_model, start, generator)
 
         discounts = c.discount * cont
         returns = lambda_returns(reward, discounts, values, c.return_lambda)
         # Weight of step t: probability that the episode is still running there (no gradient).
         weights = torch.cumprod(torch.cat((start_continue.unsqueeze(0), discounts[:-1].detach()), 0), 0)
-        critic_per_step, log_prob, entropy = self._critic_and_policy_terms(imagined, critic_logits, returns.detach())
+        critic_per_step, log_prob, entropy = self._critic_and_policy_terms(imagined, critic_chunks, returns.detach())
 
         low, high = self.return_norm.candidate(returns)
         scale = self.return_norm.scale(low, high)
