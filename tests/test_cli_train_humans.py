@@ -63,13 +63,15 @@ def test_resume_after_sigkill(cli, track_store):
     args = ["train-humans", "--intent", "left", "--track", "straightaway", *SMOKE,
             "--set", "humans.env_steps=480", "--set", "humans.checkpoints=4", "--json"]
     cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(track_store)]
+    # Run states of earlier tests' runs in this store do not count: wait for this run's own.
+    earlier_states = set((Path(track_store) / "runs").glob("*/state.pt"))
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     store = Store(track_store)
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:
         humans = [a for a in store.list("human") if a.labels["intent"] == "left"]
         # The resume point is the run state written just after each checkpoint artifact.
-        if humans and list((Path(track_store) / "runs").glob("*/state.pt")):
+        if humans and set((Path(track_store) / "runs").glob("*/state.pt")) - earlier_states:
             break
         time.sleep(0.2)
     else:
