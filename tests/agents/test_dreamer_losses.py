@@ -186,6 +186,43 @@ def test_rssm_resets_state_where_is_first(make_agent):
     assert not torch.allclose(out.latent.h[0, 3], out.latent.h[1, 3], atol=1e-3)
 
 
+@pytest.mark.parametrize("unimix", [0.01, 0.0])
+def test_filtering_backward_matches_autograd(make_agent, unimix):
+    """The filtering loop's hand-written backward pass gives autograd's gradients, through
+    mid-sequence resets to a learned initial state, for gradients arriving at every output."""
+    config = make_agent(unimix=unimix).config
+    torch.manual_seed(0)
+    model = WorldModel(obs_size=3, action_size=2, config=config)
+    with torch.no_grad():
+        model.rssm.initial_deter.normal_()  # a non-zero initial state, so its gradient matters
+    batch, length = 5, 9
+    obs, actions = torch.randn(batch, length, 3), torch.randn(batch, length, 2)
+    is_first = torch.zeros(batch, length, dtype=torch.bool)
+    is_first[:, 0] = True
+    is_first[1, 4] = is_first[3, 6] = is_first[4, 8] = True
+    outputs = {}
+    for name, observe in (("manual", model.rssm.observe), ("autograd", model.rssm.observe_autograd)):
+        model.zero_grad()
+        out = observe(model.embed(obs), actions, is_first, torch.Generator().manual_seed(3))
+        weights = torch.Generator().manual_seed(4)  # same random cotangents for both
+        loss = sum(
+            (tensor * torch.randn(tensor.shape, generator=weights)).sum()
+            for tensor in (out.latent.h, out.latent.probs, out.post_logits, out.prior_logits)
+        )
+        loss.backward()
+        grads = {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
+        outputs[name] = (out, grads)
+    (manual, manual_grads), (reference, reference_grads) = outputs["manual"], outputs["autograd"]
+    assert torch.equal(manual.latent.index, reference.latent.index)
+    assert torch.allclose(manual.latent.h, reference.latent.h, atol=1e-6)
+    assert torch.allclose(manual.post_logits, reference.post_logits, atol=1e-6)
+    assert set(manual_grads) == set(reference_grads)
+    assert "rssm.initial_deter" in manual_grads and "rssm.img_in.table" in manual_grads
+    for name, grad in reference_grads.items():
+        scale = grad.abs().max().clamp(min=1e-6)
+        assert (manual_grads[name] - grad).abs().max() / scale < 1e-4, name
+
+
 def test_symlog_mse_decoder_target(make_agent):
     """The decoder regresses symlog(obs): a huge observation gives a moderate loss."""
     config = make_agent().config

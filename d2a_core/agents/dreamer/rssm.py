@@ -18,6 +18,7 @@ from torch import Tensor, nn
 
 from .config import DreamerConfig
 from .distributions import unimix_probs
+from .filtering import FilterSetup, filter_sequences
 from .latent import Latent, LatentMLP, OneHotLinear, Readout
 from .nets import NormLayer, init_linear_
 
@@ -131,20 +132,53 @@ class RSSM(nn.Module):
 
     # --- sequences
 
-    def observe(
-        self,
-        embed: Tensor,
-        prev_actions: Tensor,
-        is_first: Tensor,
-        generator: torch.Generator | None,
-        state: Latent | None = None,
-    ) -> Observed:
+    def observe(self, embed: Tensor, prev_actions: Tensor, is_first: Tensor, generator: torch.Generator | None) -> Observed:
         """Filter sequences: embed (B, T, E), prev_actions (B, T, A) (the action before each
         observation), is_first (B, T) bool. Where is_first, the state and previous action are
-        reset to the initial state and zero before the step."""
+        reset to the initial state and zero before the step.
+
+        In float32 the loop runs with a hand-written backward pass (`filtering.py`); under
+        autocast it runs with autograd (`observe_autograd`, the reference). Both draw the same
+        random numbers."""
+        if torch.is_autocast_enabled(embed.device.type) or embed.dtype != torch.float32:
+            return self.observe_autograd(embed, prev_actions, is_first, generator)
+        batch, length = embed.shape[:2]
+        prev_actions = prev_actions.masked_fill(is_first.unsqueeze(-1), 0.0)
+        w_obs = self.obs_out.linear.weight
+        uniform = self.uniform((length, batch), generator, embed.device)
+        setup = FilterSetup(
+            is_first=is_first,
+            initial_index=self.initial(1).index[0],
+            uniform=uniform,
+            offsets=self.offsets,
+            stoch=self.stoch,
+            classes=self.classes,
+            unimix=self.unimix,
+            eps=self.img_in_norm.eps,
+        )
+        h, index, probs, logits = filter_sequences(
+            setup,
+            torch.tanh(self.initial_deter),
+            F.linear(prev_actions, self.img_in.dense_weight),
+            F.linear(embed, w_obs[:, self.deter :]),
+            self.img_in.table,
+            self.img_in_norm,
+            self.gru_linear.weight,
+            self.gru_norm,
+            w_obs[:, : self.deter],
+            self.obs_out.norm,
+            self.post_head,
+        )
+        return Observed(latent=Latent(h, index, probs), post_logits=logits, prior_logits=self.prior_logits(h))
+
+    def observe_autograd(
+        self, embed: Tensor, prev_actions: Tensor, is_first: Tensor, generator: torch.Generator | None
+    ) -> Observed:
+        """`observe` step by step with autograd: the reference for the hand-written backward
+        pass, and the path under autocast."""
         batch, length = embed.shape[:2]
         initial = self.initial(batch)
-        latent = state if state is not None else initial
+        latent = initial
         prev_actions = prev_actions.masked_fill(is_first.unsqueeze(-1), 0.0)
         action_pre = F.linear(prev_actions, self.img_in.dense_weight)
         table = self.img_in.compute_table()
