@@ -18,10 +18,10 @@ from d2a_core.agents.dreamer.distributions import (
     straight_through,
     symexp,
     symlog,
+    sample_index,
     unimix_probs,
 )
 from d2a_core.agents.dreamer.latent import Latent, LatentMLP, Readout
-from d2a_core.agents.dreamer.rssm import sample_index
 
 
 def test_symlog_symexp_are_inverse_and_compress():

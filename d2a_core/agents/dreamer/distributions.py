@@ -15,6 +15,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from . import native
+
 
 def symlog(x: Tensor) -> Tensor:
     """sign(x) * ln(|x| + 1): compresses large magnitudes, identity-like near zero."""
@@ -83,6 +85,33 @@ def unimix_probs(logits: Tensor, unimix: float) -> Tensor:
     if unimix > 0:  # the product is a fresh tensor nothing saved, so the add can be in place
         probs = probs.mul(1.0 - unimix).add_(unimix / logits.shape[-1])
     return probs
+
+
+def sample_index(probs: Tensor, uniform: Tensor, offsets: Tensor) -> Tensor:
+    """Flat sample indices (..., stoch) of categoricals probs (..., stoch, classes) by inverse
+    CDF with uniform (..., stoch, 1); `offsets` = arange(stoch) * classes."""
+    cdf = probs.detach().cumsum(-1)
+    local = torch.searchsorted(cdf, uniform).squeeze(-1).clamp_(max=probs.shape[-1] - 1)
+    return local + offsets
+
+
+def unimix_sample(logits: Tensor, uniform: Tensor, unimix: float, offsets: Tensor) -> tuple[Tensor, Tensor]:
+    """`unimix_probs` of logits (..., stoch, classes) (differentiable) and their `sample_index`
+    samples, in one pass of a compiled kernel on the CPU (see native.py)."""
+    if native.usable(logits, uniform):
+        return native.UnimixSample.apply(logits, uniform, unimix)
+    probs = unimix_probs(logits, unimix)
+    return probs, sample_index(probs, uniform, offsets)
+
+
+def unimix_probs_backward(probs: Tensor, grad: Tensor, unimix: float) -> Tensor:
+    """Gradient of the logits given the gradient of `unimix_probs`' output `probs`, for callers
+    that differentiate by hand (see filtering.py)."""
+    if native.usable(probs, grad):
+        return native.unimix_backward(probs, grad, unimix)
+    mixed = probs - unimix / probs.shape[-1]  # (1 - unimix) * softmax
+    dot = (mixed * grad).sum(-1, keepdim=True) / (1.0 - unimix)
+    return mixed * (grad - dot)
 
 
 def sample_onehot(probs: Tensor, uniform: Tensor) -> Tensor:

@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .distributions import unimix_probs_backward, unimix_sample
 from .latent import table_gradient
 
 _nlb = torch.ops.aten.native_layer_norm_backward
@@ -96,12 +97,9 @@ class _Filter(torch.autograd.Function):
             v, mean_o, rstd_o = torch.native_layer_norm(o, (units,), w_o, b_o, s.eps)
             w = F.silu(v)
             logits = F.linear(w, w_post, b_post).view(batch, s.stoch, s.classes)
-            soft = torch.softmax(logits, -1)
-            probs = soft.mul(1.0 - s.unimix).add_(s.unimix / s.classes) if s.unimix > 0 else soft
-            cdf = probs.cumsum(-1)
-            index = torch.searchsorted(cdf, s.uniform[t]).squeeze(-1).clamp_(max=s.classes - 1) + s.offsets
+            probs, index = unimix_sample(logits, s.uniform[t], s.unimix, s.offsets)
             saved.append([index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, reset, cand, new,
-                          update, h, o, mean_o, rstd_o, v, w, soft])
+                          update, h, o, mean_o, rstd_o, v, w, probs])
             hs.append(h)
             indices.append(index)
             probs_list.append(probs)
@@ -132,16 +130,15 @@ class _Filter(torch.autograd.Function):
         grads: list[list[Tensor]] = [[] for _ in range(7)]  # dlogits, dv, do, dq, dp, du, da per step
         for t in range(length - 1, -1, -1):
             (index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, reset, cand, new,
-             update, h, o, mean_o, rstd_o, v, w, soft) = saved[t]
+             update, h, o, mean_o, rstd_o, v, w, probs) = saved[t]
             dprobs = _add(None if g_probs is None else g_probs[t], dprobs_next)
             if dprobs is not None:
-                scaled = dprobs * (1.0 - s.unimix) if s.unimix > 0 else dprobs
-                dlogits = torch._softmax_backward_data(scaled, soft, -1, soft.dtype)
+                dlogits = unimix_probs_backward(probs, dprobs.contiguous(), s.unimix)
                 dlogits = _add(dlogits, None if g_logits is None else g_logits[t]).reshape(batch, flat)
             elif g_logits is not None:
                 dlogits = g_logits[t].reshape(batch, flat)
             else:
-                dlogits = soft.new_zeros(batch, flat)
+                dlogits = probs.new_zeros(batch, flat)
             dv = torch.ops.aten.silu_backward(dlogits @ w_post, v)
             do = _nlb(dv, o, (units,), mean_o, rstd_o, w_o, b_o, _INPUT_ONLY)[0]
             dh = _add(_add(None if g_h is None else g_h[t], dh_next), do @ w_obs_h)

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import DreamerConfig
-from .distributions import unimix_probs
+from .distributions import unimix_probs, unimix_sample
 from .filtering import FilterSetup, filter_sequences
 from .latent import Latent, LatentMLP, OneHotLinear, Readout
 from .nets import NormLayer, init_linear_
@@ -52,14 +52,6 @@ class Imagined:
     def latent(self) -> Latent:
         """All states stacked, leading shape (H+1, N)."""
         return Latent.stack(self.states)
-
-
-def sample_index(probs: Tensor, uniform: Tensor, offsets: Tensor) -> Tensor:
-    """Flat sample indices (..., stoch) of categoricals probs (..., stoch, classes) by inverse
-    CDF with uniform (..., stoch, 1); `offsets` = arange(stoch) * classes."""
-    cdf = probs.detach().cumsum(-1)
-    local = torch.searchsorted(cdf, uniform).squeeze(-1).clamp_(max=probs.shape[-1] - 1)
-    return local + offsets
 
 
 class RSSM(nn.Module):
@@ -123,8 +115,8 @@ class RSSM(nn.Module):
 
     def sample(self, h: Tensor, logits: Tensor, uniform: Tensor) -> Latent:
         """State with z sampled (straight-through) from `logits`."""
-        probs = unimix_probs(logits, self.unimix)
-        return Latent(h, sample_index(probs, uniform, self.offsets), probs)
+        probs, index = unimix_sample(logits.float(), uniform, self.unimix, self.offsets)
+        return Latent(h, index, probs)
 
     def uniform(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> Tensor:
         """Random numbers for sampling states of leading shape `shape`."""
