@@ -50,11 +50,12 @@ def test_table_gradient_kernel_equals_index_add(monkeypatch, samples):
 
 
 @needs_kernels
-@pytest.mark.parametrize(("rows", "unimix"), [(16, 0.01), (1024, 0.01), (300, 0.0)])
-def test_unimix_sample_kernel_equals_torch_ops(monkeypatch, rows, unimix):
+@pytest.mark.parametrize(("rows", "unimix", "with_bias"), [(16, 0.01, False), (1024, 0.01, True), (300, 0.0, False)])
+def test_unimix_sample_kernel_equals_torch_ops(monkeypatch, rows, unimix, with_bias):
     stoch, classes = 32, 32
     generator = torch.Generator().manual_seed(rows)
     logits = (3 * torch.randn(rows, stoch, classes, generator=generator)).requires_grad_()
+    bias = torch.randn(stoch, classes, generator=generator).requires_grad_() if with_bias else None
     uniform = torch.rand(rows, stoch, 1, generator=generator)
     offsets = torch.arange(stoch) * classes
     cotangent = torch.randn(rows, stoch, classes, generator=generator)
@@ -62,11 +63,15 @@ def test_unimix_sample_kernel_equals_torch_ops(monkeypatch, rows, unimix):
     for torch_only in (False, True):
         if torch_only:
             _torch_only(monkeypatch)
-        probs, index = unimix_sample(logits, uniform, unimix, offsets)
-        (grad,) = torch.autograd.grad((probs * cotangent).sum(), logits)
+        probs, index = unimix_sample(logits, uniform, unimix, offsets, bias)
+        inputs = (logits,) if bias is None else (logits, bias)
+        grads = torch.autograd.grad((probs * cotangent).sum(), inputs)
         by_hand = unimix_probs_backward(probs.detach(), cotangent, unimix)
-        results.append((probs.detach(), index, grad, by_hand))
-    (probs, index, grad, by_hand), (probs_ref, index_ref, grad_ref, by_hand_ref) = results
+        results.append((probs.detach(), index, grads, by_hand))
+    (probs, index, grads, by_hand), (probs_ref, index_ref, grads_ref, by_hand_ref) = results
+    grad, grad_ref = grads[0], grads_ref[0]
+    if bias is not None:
+        assert torch.allclose(grads[1], grads_ref[1], atol=1e-5 * grads_ref[1].abs().max())
     assert torch.allclose(probs, probs_ref, atol=1e-6)
     assert probs.min() >= unimix / classes * 0.999
     # exp differs by an ulp between the two, so a uniform number right on a boundary may pick

@@ -50,13 +50,14 @@ void d2a_table_gradient(const int64_t *index, const float *grad, float *out, int
 #define SAMPLE_BLOCK 8
 
 /* For each of `groups` categoricals of `classes` logits (group g is latent g % stoch of its
- * sample): probs = (1 - mix) * softmax + mix / classes, and the inverse-CDF sample for
+ * sample), plus `bias` (stoch x classes) if not NULL: probs = (1 - mix) * softmax + mix / classes, and the inverse-CDF sample for
  * uniform[g]: the number of classes whose cumulative probability (summed in double, rounded to
  * float, as torch.cumsum) is below it, at most classes - 1 (torch.searchsorted, clamped).
  * index = class + (g % stoch) * classes. Groups are scanned SAMPLE_BLOCK at a time so that
  * their running sums, each a chain of dependent additions, overlap. */
-void d2a_unimix_sample(const float *logits, const float *uniform, float *probs, int64_t *index,
-                       int64_t groups, int64_t stoch, int64_t classes, float mix, int threads)
+void d2a_unimix_sample(const float *logits, const float *bias, const float *uniform, float *probs,
+                       int64_t *index, int64_t groups, int64_t stoch, int64_t classes, float mix,
+                       int threads)
 {
     const float floor_prob = mix / (float)classes;
     const int64_t blocks = (groups + SAMPLE_BLOCK - 1) / SAMPLE_BLOCK;
@@ -67,6 +68,12 @@ void d2a_unimix_sample(const float *logits, const float *uniform, float *probs, 
         for (int64_t j = 0; j < count; j++) {
             const float *x = logits + (g0 + j) * classes;
             float *p = probs + (g0 + j) * classes;
+            if (bias) {  /* p holds the biased logits until the exponent overwrites them */
+                const float *add = bias + ((g0 + j) % stoch) * classes;
+#pragma omp simd
+                for (int64_t c = 0; c < classes; c++) p[c] = x[c] + add[c];
+                x = p;
+            }
             float top = x[0];
 #pragma omp simd reduction(max : top)
             for (int64_t c = 0; c < classes; c++) top = x[c] > top ? x[c] : top;

@@ -95,12 +95,15 @@ def sample_index(probs: Tensor, uniform: Tensor, offsets: Tensor) -> Tensor:
     return local + offsets
 
 
-def unimix_sample(logits: Tensor, uniform: Tensor, unimix: float, offsets: Tensor) -> tuple[Tensor, Tensor]:
-    """`unimix_probs` of logits (..., stoch, classes) (differentiable) and their `sample_index`
-    samples, in one pass of a compiled kernel on the CPU (see native.py)."""
-    if native.usable(logits, uniform):
-        return native.UnimixSample.apply(logits, uniform, unimix)
-    probs = unimix_probs(logits, unimix)
+def unimix_sample(
+    logits: Tensor, uniform: Tensor, unimix: float, offsets: Tensor, bias: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
+    """`unimix_probs` of logits (..., stoch, classes) plus `bias` (stoch, classes) if given
+    (differentiable in both) and their `sample_index` samples, in one pass of a compiled kernel
+    on the CPU (see native.py)."""
+    if native.usable(logits, uniform, *([] if bias is None else [bias])):
+        return native.UnimixSample.apply(logits, uniform, unimix, bias)
+    probs = unimix_probs(logits if bias is None else logits + bias, unimix)
     return probs, sample_index(probs, uniform, offsets)
 
 

@@ -40,7 +40,7 @@ _p = ctypes.c_void_p
 _i64 = ctypes.c_int64
 _SIGNATURES = {
     "d2a_table_gradient": [_p, _p, _p, _i64, _i64, _i64, _i64, ctypes.c_int],
-    "d2a_unimix_sample": [_p, _p, _p, _p, _i64, _i64, _i64, ctypes.c_float, ctypes.c_int],
+    "d2a_unimix_sample": [_p, _p, _p, _p, _p, _i64, _i64, _i64, ctypes.c_float, ctypes.c_int],
     "d2a_unimix_backward": [_p, _p, _p, _i64, _i64, ctypes.c_float, ctypes.c_int],
 }
 
@@ -162,19 +162,20 @@ def unimix_backward(probs: Tensor, grad: Tensor, mix: float) -> Tensor:
 
 
 class UnimixSample(torch.autograd.Function):
-    """probs = (1 - mix) softmax(logits) + mix / classes over the last axis of logits
-    (..., stoch, classes), and flat sample indices (..., stoch) by inverse CDF with uniform
-    (..., stoch, 1). Differentiable in logits through probs; callers check `usable` first."""
+    """probs = (1 - mix) softmax(logits + bias) + mix / classes over the last axis of logits
+    (..., stoch, classes) (bias (stoch, classes) or None), and flat sample indices (..., stoch)
+    by inverse CDF with uniform (..., stoch, 1). Differentiable in logits and bias through
+    probs; callers check `usable` first. Adding the bias here saves a pass over the logits."""
 
     @staticmethod
-    def forward(ctx, logits: Tensor, uniform: Tensor, mix: float) -> tuple[Tensor, Tensor]:  # type: ignore[override]
+    def forward(ctx, logits: Tensor, uniform: Tensor, mix: float, bias: Tensor | None = None) -> tuple[Tensor, Tensor]:  # type: ignore[override]
         stoch, classes = logits.shape[-2:]
         groups = logits.numel() // classes
         probs = torch.empty_like(logits)
         index = torch.empty(logits.shape[:-1], dtype=torch.int64)
         _state["lib"].d2a_unimix_sample(  # type: ignore[union-attr]
-            logits.data_ptr(), uniform.data_ptr(), probs.data_ptr(), index.data_ptr(),
-            groups, stoch, classes, mix, _threads(logits.numel(), 1 << 12),
+            logits.data_ptr(), None if bias is None else bias.data_ptr(), uniform.data_ptr(),
+            probs.data_ptr(), index.data_ptr(), groups, stoch, classes, mix, _threads(logits.numel(), 1 << 12),
         )
         ctx.save_for_backward(probs)
         ctx.mix = mix
@@ -184,4 +185,8 @@ class UnimixSample(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_probs: Tensor, _grad_index: Tensor):  # type: ignore[override]
         (probs,) = ctx.saved_tensors
-        return unimix_backward(probs, grad_probs.float().contiguous(), ctx.mix), None, None
+        grad_logits = unimix_backward(probs, grad_probs.float().contiguous(), ctx.mix)
+        grad_bias = None
+        if ctx.needs_input_grad[3]:
+            grad_bias = grad_logits.reshape(-1, *probs.shape[-2:]).sum(0)
+        return grad_logits, None, None, grad_bias

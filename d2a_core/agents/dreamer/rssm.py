@@ -118,6 +118,14 @@ class RSSM(nn.Module):
         probs, index = unimix_sample(logits.float(), uniform, self.unimix, self.offsets)
         return Latent(h, index, probs)
 
+    def sample_prior(self, h: Tensor, uniform: Tensor) -> Latent:
+        """State with z sampled from the prior at h (the prior head's bias is added by the
+        sampling kernel, which saves a pass over the logits)."""
+        logits = F.linear(self.img_out(h), self.prior_head.weight).unflatten(-1, (self.stoch, self.classes))
+        bias = self.prior_head.bias.view(self.stoch, self.classes)
+        probs, index = unimix_sample(logits.float(), uniform, self.unimix, self.offsets, bias.float())
+        return Latent(h, index, probs)
+
     def uniform(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> Tensor:
         """Random numbers for sampling states of leading shape `shape`."""
         return torch.rand((*shape, self.stoch, 1), generator=generator, device=device)
@@ -236,7 +244,7 @@ class RSSM(nn.Module):
                 pres.append(last(latent))
             action, extra = policy(latent, policy_pre)
             h = self.step(latent, action, z_part)
-            latent = self.sample(h, self.prior_logits(h), uniform[t])
+            latent = self.sample_prior(h, uniform[t])
             states.append(latent)
             actions.append(action)
             extras.append(extra)
