@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.behavior import Behavior, ReturnNormalizer, frozen, lambda_returns
 from d2a_core.agents.dreamer.distributions import TwoHot, symlog
 from d2a_core.agents.dreamer.latent import Latent
@@ -186,10 +187,13 @@ def test_rssm_resets_state_where_is_first(make_agent):
     assert not torch.allclose(out.latent.h[0, 3], out.latent.h[1, 3], atol=1e-3)
 
 
-@pytest.mark.parametrize("unimix", [0.01, 0.0])
-def test_filtering_backward_matches_autograd(make_agent, unimix):
+@pytest.mark.parametrize(("unimix", "kernels"), [(0.01, True), (0.0, True), (0.01, False)])
+def test_filtering_backward_matches_autograd(make_agent, monkeypatch, unimix, kernels):
     """The filtering loop's hand-written backward pass gives autograd's gradients, through
-    mid-sequence resets to a learned initial state, for gradients arriving at every output."""
+    mid-sequence resets to a learned initial state, for gradients arriving at every output;
+    with the compiled CPU kernels and with PyTorch ops only."""
+    if not kernels:
+        monkeypatch.setattr(native, "usable", lambda *tensors: False)
     config = make_agent(unimix=unimix).config
     torch.manual_seed(0)
     model = WorldModel(obs_size=3, action_size=2, config=config)

@@ -12,9 +12,10 @@ import sys
 import pytest
 import torch
 
-from d2a_core.agents.dreamer import native
+from d2a_core.agents.dreamer import DreamerConfig, native
 from d2a_core.agents.dreamer.distributions import unimix_probs_backward, unimix_sample
 from d2a_core.agents.dreamer.latent import table_gradient
+from d2a_core.agents.dreamer.rssm import RSSM
 
 needs_kernels = pytest.mark.skipif(
     not native.usable(torch.zeros(1)), reason=f"compiled kernels unavailable: {native.status()}"
@@ -85,6 +86,33 @@ def test_unimix_sample_kernel_equals_torch_ops(monkeypatch, rows, unimix, with_b
 
 
 @needs_kernels
+@pytest.mark.parametrize("rows", [16, 1024])
+def test_layer_norm_gru_kernel_equals_torch_ops(monkeypatch, rows):
+    """RSSM.gru through the kernel and through PyTorch ops: same state, same gradients for the
+    inputs, the previous state and every weight."""
+    config = DreamerConfig(units=48, deter=40, stoch=4, classes=4)
+    torch.manual_seed(rows)
+    rssm = RSSM(config, embed_size=8, action_size=2)
+    with torch.no_grad():  # non-trivial norm parameters
+        rssm.gru_norm.weight.normal_(1.0, 0.3)
+        rssm.gru_norm.bias.normal_(0.0, 0.3)
+    x = torch.randn(rows, 48, requires_grad=True)
+    h = torch.randn(rows, 40, requires_grad=True)
+    cotangent = torch.randn(rows, 40)
+    params = [x, h, rssm.gru_linear.weight, rssm.gru_norm.weight, rssm.gru_norm.bias]
+    results = []
+    for torch_only in (False, True):
+        if torch_only:
+            _torch_only(monkeypatch)
+        out = rssm.gru(x, h)
+        results.append((out.detach(), torch.autograd.grad((out * cotangent).sum(), params)))
+    (out, grads), (out_ref, grads_ref) = results
+    assert torch.allclose(out, out_ref, atol=1e-5)
+    for grad, grad_ref in zip(grads, grads_ref):
+        assert (grad - grad_ref).abs().max() <= 1e-4 * grad_ref.abs().max()
+
+
+@needs_kernels
 def test_unimix_sample_kernel_propagates_nan():
     """A diverged model must still produce a non-finite loss (the trainer stops on it)."""
     logits = torch.randn(4, 2, 8)
@@ -96,7 +124,7 @@ def test_unimix_sample_kernel_propagates_nan():
 
 _PROBE = """
 import json, torch
-from d2a_core.agents.dreamer import native
+from d2a_core.agents.dreamer import DreamerConfig, native
 from d2a_core.agents.dreamer.distributions import unimix_sample
 probs, index = unimix_sample(torch.zeros(2, 3, 4), torch.full((2, 3, 1), 0.6), 0.01, torch.arange(3) * 4)
 print(json.dumps({"status": native.status(), "index": index.tolist()}))

@@ -13,9 +13,12 @@
 #endif
 
 #if defined(__x86_64__) && defined(__GLIBC__)
-/* glibc's libmvec has vector versions of expf but math.h declares them only under -ffast-math,
- * whose other assumptions (no NaN) would hide a diverging model. */
+/* glibc's libmvec has vector versions of expf (and, since 2.35, tanhf) but math.h declares them
+ * only under -ffast-math, whose other assumptions (no NaN) would hide a diverging model. */
 float expf(float) __attribute__((__simd__("notinbranch")));
+#if __GLIBC_PREREQ(2, 35)
+float tanhf(float) __attribute__((__simd__("notinbranch")));
+#endif
 #endif
 
 /* Gradient of an embedding-bag's table: out (rows x width) = sum over samples i and latents k
@@ -120,5 +123,95 @@ void d2a_unimix_backward(const float *probs, const float *grad, float *out, int6
         dot *= inverse;
 #pragma omp simd
         for (int64_t c = 0; c < classes; c++) o[c] = (p[c] - floor_prob) * (d[c] - dot);
+    }
+}
+
+static inline float sigmoid(float x) { return 1.0f / (1.0f + expf(-x)); }
+
+/* DreamerV3's LayerNorm GRU cell after its matmul: q = LayerNorm(p) * weight + bias over the
+ * 3 * deter columns of each row of p (reset, candidate, update parts), reset = sigmoid(q_r),
+ * candidate = tanh(reset * q_c), update = sigmoid(q_u - 1), h = h_prev + update * (candidate - h_prev).
+ * Writes h and each row's mean and 1 / std for the backward pass. */
+void d2a_ln_gru(const float *p, const float *h_prev, const float *weight, const float *bias,
+                float eps, float *h, float *mean_out, float *rstd_out, int64_t rows, int64_t deter,
+                int threads)
+{
+    const int64_t width = 3 * deter;
+#pragma omp parallel for num_threads(threads) schedule(static) if (threads > 1)
+    for (int64_t i = 0; i < rows; i++) {
+        const float *x = p + i * width;
+        const float *hp = h_prev + i * deter;
+        float *out = h + i * deter;
+        float sum = 0.0f, squares = 0.0f;
+#pragma omp simd reduction(+ : sum)
+        for (int64_t j = 0; j < width; j++) sum += x[j];
+        const float mean = sum / (float)width;
+#pragma omp simd reduction(+ : squares)
+        for (int64_t j = 0; j < width; j++) squares += (x[j] - mean) * (x[j] - mean);
+        const float rstd = 1.0f / sqrtf(squares / (float)width + eps);
+        mean_out[i] = mean;
+        rstd_out[i] = rstd;
+        const int64_t c = deter, u = 2 * deter;
+#pragma omp simd
+        for (int64_t j = 0; j < deter; j++) {
+            const float reset = sigmoid((x[j] - mean) * rstd * weight[j] + bias[j]);
+            const float cand = (x[c + j] - mean) * rstd * weight[c + j] + bias[c + j];
+            const float update = sigmoid((x[u + j] - mean) * rstd * weight[u + j] + bias[u + j] - 1.0f);
+            const float next = tanhf(reset * cand);
+            out[j] = hp[j] + update * (next - hp[j]);
+        }
+    }
+}
+
+/* Backward of d2a_ln_gru given dh: writes dp (gradient of the cell's input p), dh_prev and, if
+ * dq is not NULL, the gradient of the norm's output q (for the weight and bias gradients). */
+void d2a_ln_gru_backward(const float *p, const float *h_prev, const float *weight,
+                         const float *bias, const float *mean_in, const float *rstd_in,
+                         const float *dh, float *dp, float *dh_prev, float *dq, int64_t rows,
+                         int64_t deter, int threads)
+{
+    const int64_t width = 3 * deter;
+#pragma omp parallel for num_threads(threads) schedule(static) if (threads > 1)
+    for (int64_t i = 0; i < rows; i++) {
+        const float *x = p + i * width;
+        const float *hp = h_prev + i * deter;
+        const float *g = dh + i * deter;
+        float *dx = dp + i * width;  /* holds weight * dq until the norm's backward below */
+        float *dhp = dh_prev + i * deter;
+        float *dqi = dq ? dq + i * width : 0;
+        const float mean = mean_in[i], rstd = rstd_in[i];
+        const int64_t c = deter, u = 2 * deter;
+#pragma omp simd
+        for (int64_t j = 0; j < deter; j++) {
+            const float reset = sigmoid((x[j] - mean) * rstd * weight[j] + bias[j]);
+            const float cand = (x[c + j] - mean) * rstd * weight[c + j] + bias[c + j];
+            const float update = sigmoid((x[u + j] - mean) * rstd * weight[u + j] + bias[u + j] - 1.0f);
+            const float next = tanhf(reset * cand);
+            const float dnext = g[j] * update;
+            const float dupdate = g[j] * (next - hp[j]);
+            dhp[j] = g[j] - dnext;
+            const float dinner = dnext * (1.0f - next * next);
+            const float dq_r = dinner * cand * reset * (1.0f - reset);
+            const float dq_c = dinner * reset;
+            const float dq_u = dupdate * update * (1.0f - update);
+            if (dqi) {
+                dqi[j] = dq_r;
+                dqi[c + j] = dq_c;
+                dqi[u + j] = dq_u;
+            }
+            dx[j] = dq_r * weight[j];
+            dx[c + j] = dq_c * weight[c + j];
+            dx[u + j] = dq_u * weight[u + j];
+        }
+        float total = 0.0f, projected = 0.0f;
+#pragma omp simd reduction(+ : total, projected)
+        for (int64_t j = 0; j < width; j++) {
+            total += dx[j];
+            projected += dx[j] * (x[j] - mean) * rstd;
+        }
+        total /= (float)width;
+        projected /= (float)width;
+#pragma omp simd
+        for (int64_t j = 0; j < width; j++) dx[j] = rstd * (dx[j] - total - (x[j] - mean) * rstd * projected);
     }
 }

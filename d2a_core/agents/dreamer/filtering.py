@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from . import native
 from .distributions import unimix_probs_backward, unimix_sample
 from .latent import table_gradient
 
@@ -73,7 +74,7 @@ class _Filter(torch.autograd.Function):
         batch, length, units = action_pre.shape
         deter = initial_h.shape[0]
         resets = s.is_first.any(0).tolist()
-        h_prev = initial_h.expand(batch, deter)
+        h_prev = initial_h.expand(batch, deter).contiguous()
         index_prev = s.initial_index.expand(batch, s.stoch)
         saved: list[list[Tensor]] = []
         hs, indices, probs_list, logits_list = [], [], [], []
@@ -87,19 +88,14 @@ class _Filter(torch.autograd.Function):
             x = F.silu(u)
             joined = torch.cat((x, h_prev), -1)
             p = F.linear(joined, w_gru)
-            q, mean_g, rstd_g = torch.native_layer_norm(p, (3 * deter,), w_g, b_g, s.eps)
-            reset, cand, update = q.chunk(3, -1)
-            reset = torch.sigmoid(reset)
-            new = torch.tanh(reset * cand)
-            update = torch.sigmoid(update - 1.0)
-            h = torch.lerp(h_prev, new, update)
+            h, mean_g, rstd_g = _gru(p, h_prev, w_g, b_g, s.eps)
             o = F.linear(h, w_obs_h) + embed_pre[:, t]
             v, mean_o, rstd_o = torch.native_layer_norm(o, (units,), w_o, b_o, s.eps)
             w = F.silu(v)
             logits = F.linear(w, w_post, b_post).view(batch, s.stoch, s.classes)
             probs, index = unimix_sample(logits, s.uniform[t], s.unimix, s.offsets)
-            saved.append([index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, reset, cand, new,
-                          update, h, o, mean_o, rstd_o, v, w, probs])
+            saved.append([index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, h_prev, h, o, mean_o,
+                          rstd_o, v, w, probs])
             hs.append(h)
             indices.append(index)
             probs_list.append(probs)
@@ -126,11 +122,11 @@ class _Filter(torch.autograd.Function):
         g_h, g_probs, g_logits = time_major
         dh_next = None  # gradient reaching h_t from step t + 1
         dprobs_next = None  # gradient reaching probs_t from step t + 1's input layer
-        d_initial = torch.zeros_like(saved[0][13][0])
+        d_initial = torch.zeros_like(saved[0][10][0])
         grads: list[list[Tensor]] = [[] for _ in range(7)]  # dlogits, dv, do, dq, dp, du, da per step
         for t in range(length - 1, -1, -1):
-            (index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, reset, cand, new,
-             update, h, o, mean_o, rstd_o, v, w, probs) = saved[t]
+            (index_prev, a, mean_in, rstd_in, u, joined, p, mean_g, rstd_g, h_prev, h, o, mean_o,
+             rstd_o, v, w, probs) = saved[t]
             dprobs = _add(None if g_probs is None else g_probs[t], dprobs_next)
             if dprobs is not None:
                 dlogits = unimix_probs_backward(probs, dprobs.contiguous(), s.unimix)
@@ -142,22 +138,9 @@ class _Filter(torch.autograd.Function):
             dv = torch.ops.aten.silu_backward(dlogits @ w_post, v)
             do = _nlb(dv, o, (units,), mean_o, rstd_o, w_o, b_o, _INPUT_ONLY)[0]
             dh = _add(_add(None if g_h is None else g_h[t], dh_next), do @ w_obs_h)
-            # h = lerp(h', new, update); new = tanh(reset * cand); gates from the normed q
-            h_prev = joined[:, units:]
-            dnew = dh * update
-            dupdate = dh * (new - h_prev)
-            dpre = torch.ops.aten.tanh_backward(dnew, new)
-            dq = torch.cat(
-                (
-                    torch.ops.aten.sigmoid_backward(dpre * cand, reset),
-                    dpre * reset,
-                    torch.ops.aten.sigmoid_backward(dupdate, update),
-                ),
-                -1,
-            )
-            dp = _nlb(dq, p, (3 * deter,), mean_g, rstd_g, w_g, b_g, _INPUT_ONLY)[0]
+            dp, dh_prev, dq = _gru_backward(p, h_prev, w_g, b_g, mean_g, rstd_g, dh.contiguous())
             djoined = dp @ w_gru
-            dh_prev = (dh - dnew) + djoined[:, units:]
+            dh_prev = dh_prev + djoined[:, units:]
             du = torch.ops.aten.silu_backward(djoined[:, :units], u)
             da = _nlb(du, a, (units,), mean_in, rstd_in, w_in, b_in, _INPUT_ONLY)[0]
             dprobs_prev = (da @ table.t()).view(batch, s.stoch, s.classes)
@@ -181,14 +164,49 @@ class _Filter(torch.autograd.Function):
         _, d_w_in, d_b_in = _nlb(du, cat(1), (units,), cat(2), cat(3), w_in, b_in, _PARAMS_ONLY)
         d_w_gru = dp.t() @ cat(5) if need[7] else None
         _, d_w_g, d_b_g = _nlb(dq, cat(6), (3 * deter,), cat(7), cat(8), w_g, b_g, _PARAMS_ONLY)
-        d_w_obs_h = do.t() @ cat(13) if need[10] else None
-        _, d_w_o, d_b_o = _nlb(dv, cat(14), (units,), cat(15), cat(16), w_o, b_o, _PARAMS_ONLY)
-        d_w_post = dlogits.t() @ cat(18) if need[13] else None
+        d_w_obs_h = do.t() @ cat(10) if need[10] else None
+        _, d_w_o, d_b_o = _nlb(dv, cat(11), (units,), cat(12), cat(13), w_o, b_o, _PARAMS_ONLY)
+        d_w_post = dlogits.t() @ cat(15) if need[13] else None
         d_b_post = dlogits.sum(0) if need[14] else None
         d_action = da.view(length, batch, units).transpose(0, 1) if need[2] else None
         d_embed = do.view(length, batch, units).transpose(0, 1) if need[3] else None
         return (None, d_initial if need[1] else None, d_action, d_embed, d_table, d_w_in, d_b_in,
                 d_w_gru, d_w_g, d_b_g, d_w_obs_h, d_w_o, d_b_o, d_w_post, d_b_post)
+
+
+def _gru(p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, eps: float) -> tuple[Tensor, Tensor, Tensor]:
+    """The LayerNorm GRU cell after its matmul (as `RSSM.gru`): h and the norm's mean and rstd."""
+    if native.usable(p, h_prev, weight, bias):
+        return native.ln_gru(p, h_prev, weight, bias, eps)
+    q, mean, rstd = torch.native_layer_norm(p, (p.shape[-1],), weight, bias, eps)
+    reset, cand, update = q.chunk(3, -1)
+    new = torch.tanh(torch.sigmoid(reset) * cand)
+    return torch.lerp(h_prev, new, torch.sigmoid(update - 1.0)), mean, rstd
+
+
+def _gru_backward(
+    p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, mean: Tensor, rstd: Tensor, dh: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Gradients of `_gru`'s p and h_prev given dh, and of the norm's output (for the norm's
+    weight and bias). The gates are recomputed from p."""
+    if native.usable(p, h_prev, weight, bias, dh):
+        return native.ln_gru_backward(p, h_prev, weight, bias, mean, rstd, dh, True)  # type: ignore[return-value]
+    q = (p - mean) * rstd * weight + bias
+    reset, cand, update = q.chunk(3, -1)
+    reset, update = torch.sigmoid(reset), torch.sigmoid(update - 1.0)
+    new = torch.tanh(reset * cand)
+    dnew = dh * update
+    dpre = torch.ops.aten.tanh_backward(dnew, new)
+    dq = torch.cat(
+        (
+            torch.ops.aten.sigmoid_backward(dpre * cand, reset),
+            dpre * reset,
+            torch.ops.aten.sigmoid_backward(dh * (new - h_prev), update),
+        ),
+        -1,
+    )
+    dp = _nlb(dq, p, (p.shape[-1],), mean, rstd, weight, bias, _INPUT_ONLY)[0]
+    return dp, dh - dnew, dq
 
 
 def _add(a: Tensor | None, b: Tensor | None) -> Tensor | None:

@@ -42,6 +42,8 @@ _SIGNATURES = {
     "d2a_table_gradient": [_p, _p, _p, _i64, _i64, _i64, _i64, ctypes.c_int],
     "d2a_unimix_sample": [_p, _p, _p, _p, _p, _i64, _i64, _i64, ctypes.c_float, ctypes.c_int],
     "d2a_unimix_backward": [_p, _p, _p, _i64, _i64, ctypes.c_float, ctypes.c_int],
+    "d2a_ln_gru": [_p, _p, _p, _p, ctypes.c_float, _p, _p, _p, _i64, _i64, ctypes.c_int],
+    "d2a_ln_gru_backward": [_p, _p, _p, _p, _p, _p, _p, _p, _p, _p, _i64, _i64, ctypes.c_int],
 }
 
 
@@ -190,3 +192,54 @@ class UnimixSample(torch.autograd.Function):
         if ctx.needs_input_grad[3]:
             grad_bias = grad_logits.reshape(-1, *probs.shape[-2:]).sum(0)
         return grad_logits, None, None, grad_bias
+
+
+def ln_gru(p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, eps: float) -> tuple[Tensor, Tensor, Tensor]:
+    """The LayerNorm GRU cell after its matmul (see `RSSM.gru`), without autograd: new state
+    (rows, deter) and the norm's per-row mean and 1 / std. All arguments contiguous float32."""
+    rows, deter = h_prev.shape
+    h = torch.empty_like(h_prev)
+    mean, rstd = torch.empty(rows, 1), torch.empty(rows, 1)
+    _state["lib"].d2a_ln_gru(  # type: ignore[union-attr]
+        p.data_ptr(), h_prev.data_ptr(), weight.data_ptr(), bias.data_ptr(), eps, h.data_ptr(),
+        mean.data_ptr(), rstd.data_ptr(), rows, deter, _threads(p.numel(), 1 << 15),
+    )
+    return h, mean, rstd
+
+
+def ln_gru_backward(
+    p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, mean: Tensor, rstd: Tensor, dh: Tensor, want_dq: bool
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """Gradients of `ln_gru`'s p and h_prev given dh, and of the norm's output if `want_dq`."""
+    rows, deter = h_prev.shape
+    dp, dh_prev = torch.empty_like(p), torch.empty_like(h_prev)
+    dq = torch.empty_like(p) if want_dq else None
+    _state["lib"].d2a_ln_gru_backward(  # type: ignore[union-attr]
+        p.data_ptr(), h_prev.data_ptr(), weight.data_ptr(), bias.data_ptr(), mean.data_ptr(),
+        rstd.data_ptr(), dh.data_ptr(), dp.data_ptr(), dh_prev.data_ptr(),
+        None if dq is None else dq.data_ptr(), rows, deter, _threads(p.numel(), 1 << 15),
+    )
+    return dp, dh_prev, dq
+
+
+class LnGru(torch.autograd.Function):
+    """`ln_gru` with autograd; callers check `usable` first."""
+
+    @staticmethod
+    def forward(ctx, p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, eps: float) -> Tensor:  # type: ignore[override]
+        h, mean, rstd = ln_gru(p, h_prev, weight, bias, eps)
+        ctx.save_for_backward(p, h_prev, weight, bias, mean, rstd)
+        ctx.eps = eps
+        return h
+
+    @staticmethod
+    def backward(ctx, dh: Tensor):  # type: ignore[override]
+        p, h_prev, weight, bias, mean, rstd = ctx.saved_tensors
+        want_params = ctx.needs_input_grad[2] or ctx.needs_input_grad[3]
+        dp, dh_prev, dq = ln_gru_backward(p, h_prev, weight, bias, mean, rstd, dh.contiguous(), want_params)
+        d_weight = d_bias = None
+        if want_params:
+            _, d_weight, d_bias = torch.ops.aten.native_layer_norm_backward(
+                dq, p, (p.shape[-1],), mean, rstd, weight, bias, [False, True, True]
+            )
+        return dp, dh_prev, d_weight, d_bias, None

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import DreamerConfig
+from . import native
 from .distributions import unimix_probs, unimix_sample
 from .filtering import FilterSetup, filter_sequences
 from .latent import Latent, LatentMLP, OneHotLinear, Readout
@@ -85,9 +86,13 @@ class RSSM(nn.Module):
         )
 
     def gru(self, x: Tensor, h: Tensor) -> Tensor:
-        """LayerNorm GRU cell with DreamerV3's update-gate bias of -1 (favours keeping h)."""
-        parts = self.gru_norm(F.linear(torch.cat((x, h), -1), self.gru_linear.weight)).to(h.dtype)
-        reset, cand, update = parts.chunk(3, -1)
+        """LayerNorm GRU cell with DreamerV3's update-gate bias of -1 (favours keeping h); after
+        its matmul, one compiled kernel on the CPU (native.py)."""
+        p = F.linear(torch.cat((x, h), -1), self.gru_linear.weight)
+        norm = self.gru_norm
+        if native.usable(p, h, norm.weight, norm.bias):
+            return native.LnGru.apply(p, h, norm.weight, norm.bias, norm.eps)
+        reset, cand, update = norm(p).to(h.dtype).chunk(3, -1)
         cand = torch.tanh(torch.sigmoid(reset) * cand)
         update = torch.sigmoid(update - 1.0)
         return torch.lerp(h, cand, update)
