@@ -255,7 +255,7 @@ class OneHotLinear(nn.Module):
         lead = index.shape[:-1]
         flat_index = index.reshape(-1, index.shape[-1])
         if flat_index.shape[0] <= DENSE_MAX_ROWS:
-            # Few rows (the world model's filtering step, acting): the dense straight-through
+            # Few rows (acting, the autograd filtering loop): the dense straight-through
             # matmul costs less than the custom function's Python forward and backward.
             onehot = torch.zeros(flat_index.shape[0], self.table.shape[0], device=index.device, dtype=self.table.dtype)
             onehot.scatter_(1, flat_index, 1.0)
