@@ -38,6 +38,7 @@ def test_train_humans_population_and_idempotence(cli, track_store):
         assert [c["fraction"] for c in pop["checkpoints"]] == [0.5, 1.0]
         assert [c["env_step"] for c in pop["checkpoints"]] == [120, 240]
         assert pop["expert"] == pop["checkpoints"][-1]["id"]
+        assert pop["runtime"]["device"] == "cpu" and pop["runtime"]["cpu_kernels"]
         for c in pop["checkpoints"]:
             m = c["metrics"]
             assert m["episodes"] == 2

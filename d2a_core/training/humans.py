@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.artifacts import Store, canonical_json
@@ -197,8 +198,11 @@ def train_population(
             env.close()
 
     expert = checkpoints[-1]
+    # How the run executed: the compiled CPU kernels change float rounding, not the method.
+    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
     result = {"intent": intent, "track": bundle.track.name, "track_id": bundle.track_id, "seed": seed,
-              "expert": expert["id"], "checkpoints": checkpoints, "resumed_from_env_step": resumed_from}
+              "expert": expert["id"], "checkpoints": checkpoints, "runtime": runtime,
+              "resumed_from_env_step": resumed_from}
     with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
                       labels={**tags, "run_key": key}) as writer:
         writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
