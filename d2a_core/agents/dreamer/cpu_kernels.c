@@ -181,6 +181,8 @@ void d2a_ln_gru_backward(const float *p, const float *h_prev, const float *weigh
         float *dqi = dq ? dq + i * width : 0;
         const float mean = mean_in[i], rstd = rstd_in[i];
         const int64_t c = deter, u = 2 * deter;
+        /* The gates are recomputed as in d2a_ln_gru (written out: a helper returning them kept
+         * GCC from vectorising either loop). */
 #pragma omp simd
         for (int64_t j = 0; j < deter; j++) {
             const float reset = sigmoid((x[j] - mean) * rstd * weight[j] + bias[j]);
