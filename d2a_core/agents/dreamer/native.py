@@ -7,10 +7,11 @@ and the CPU, and loaded with ctypes. Where that is impossible (no compiler, read
 another OS) or `D2A_NATIVE_KERNELS=0`, callers use PyTorch ops that compute the same thing;
 `status()` says which. The kernels are only used for contiguous float32 CPU tensors.
 
-Why: on CPU these ops are bound by memory passes, not arithmetic. Sampling a latent state
-(softmax, uniform mix, cumulative sum, search) took five passes over a 1024 x 32 x 32 tensor in
-every imagination step, and the table gradient of an embedding-bag (the one-hot latent's
-weight gradient) one index_add per latent; each kernel makes one pass.
+Why: on CPU these ops are bound by memory passes and per-op overhead, not arithmetic. Sampling
+a latent state (softmax, uniform mix, cumulative sum, search) took five passes over a
+1024 x 32 x 32 tensor in every imagination step, the table gradient of an embedding-bag (the
+one-hot latent's weight gradient) one index_add per latent, and the LayerNorm-GRU cell after its
+matmul eight ops; each kernel makes one pass.
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ from torch import Tensor
 log = logging.getLogger(__name__)
 
 _SOURCE = Path(__file__).with_name("cpu_kernels.c")
-_FLAGS = ["-O3", "-march=native", "-mprefer-vector-width=512", "-fno-math-errno", "-fno-trapping-math", "-fPIC", "-shared"]
+_FLAGS = ["-O3", "-march=native", "-fno-math-errno", "-fno-trapping-math", "-fPIC", "-shared"]
+if platform.machine() == "x86_64":
+    _FLAGS.append("-mprefer-vector-width=512")  # AVX-512 where the CPU has it (GCC prefers 256)
 _lock = threading.Lock()
 _state: dict[str, object] = {"lib": None, "tried": False, "reason": "not loaded yet"}
 
