@@ -69,14 +69,18 @@ def _cpu_signature() -> str:
 def _compile(compiler: str) -> Path:
     source = _SOURCE.read_bytes()
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
-    last_error = ""
-    for openmp in (["-fopenmp"], []):  # without OpenMP the kernels run on one thread
+    cpu = _cpu_signature().encode()
+    variants = []  # with OpenMP first; without it the kernels run on one thread
+    for openmp in (["-fopenmp"], []):
         flags = _FLAGS + openmp
-        key = hashlib.sha256(b"\0".join([source, " ".join(flags).encode(), version.encode(),
-                                         _cpu_signature().encode()])).hexdigest()[:20]
-        target = _cache_dir() / f"cpu_kernels-{key}.so"
+        key = hashlib.sha256(b"\0".join([source, " ".join(flags).encode(), version.encode(), cpu])).hexdigest()[:20]
+        variants.append((flags, _cache_dir() / f"cpu_kernels-{key}.so"))
+    # A library built before is used without compiling again (also where OpenMP failed to link).
+    for _, target in variants:
         if target.exists():
             return target
+    last_error = ""
+    for flags, target in variants:
         target.parent.mkdir(parents=True, exist_ok=True)
         # Compile to a temporary name and rename: a killed compile never leaves a half library.
         handle, partial = tempfile.mkstemp(dir=target.parent, suffix=".so.partial")
@@ -232,7 +236,6 @@ class LnGru(torch.autograd.Function):
     def forward(ctx, p: Tensor, h_prev: Tensor, weight: Tensor, bias: Tensor, eps: float) -> Tensor:  # type: ignore[override]
         h, mean, rstd = ln_gru(p, h_prev, weight, bias, eps)
         ctx.save_for_backward(p, h_prev, weight, bias, mean, rstd)
-        ctx.eps = eps
         return h
 
     @staticmethod
