@@ -144,6 +144,42 @@ def test_onehot_linear_equals_dense_linear_on_straight_through_samples():
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.parametrize("rows", [7, 100])
+def test_readout_with_input_stopped_mlps_equals_dense_layers_on_detached_states(rows):
+    """`Readout(..., input_stopped=k)`: the first k MLPs read sg(state) (the actor in
+    imagination), the others the state itself; outputs and every gradient (states and first
+    layer weights) match dense layers where the first k get explicitly detached features."""
+    torch.manual_seed(0)
+    deter, stoch, classes = 5, 3, 4
+    mlps = [LatentMLP(deter, stoch * classes, 8, 1, 1e-3, out_size=3) for _ in range(3)]
+    extra = torch.randn(stoch * classes, 6, requires_grad=True)
+    latent = _random_latent(rows, deter, stoch, classes, seed=1)
+    probe = torch.randn(rows, 6)
+
+    outs = Readout(mlps, [extra], input_stopped=1)(latent)
+    loss = sum((mlp.finish(pre) ** 2).sum() for mlp, pre in zip(mlps, outs)) + (outs[3] * probe).sum()
+    params = [latent.h, latent.probs, extra] + [p for mlp in mlps for p in (mlp.first.dense_weight, mlp.first.table)]
+    grads = torch.autograd.grad(loss, params)
+
+    feat = latent.dense()
+    dense_loss = (feat[:, deter:] @ extra * probe).sum()
+    for k, mlp in enumerate(mlps):
+        weight = torch.cat((mlp.first.dense_weight, mlp.first.table.t()), 1)
+        dense_loss = dense_loss + (mlp.finish(F.linear(feat.detach() if k < 1 else feat, weight)) ** 2).sum()
+    dense_grads = torch.autograd.grad(dense_loss, params)
+    assert torch.allclose(loss, dense_loss, rtol=1e-5)
+    for fast, slow in zip(grads, dense_grads):
+        assert slow.abs().sum() > 0
+        assert torch.allclose(fast, slow, rtol=1e-4, atol=1e-5)
+    # The stopped MLP alone sends nothing to the states, only to its own weights.
+    alone = Readout(mlps[:1], [extra], input_stopped=1)(latent)[0]
+    assert torch.allclose(alone, outs[0])
+    h_grad, probs_grad, table_grad = torch.autograd.grad(
+        (mlps[0].finish(alone) ** 2).sum(), [latent.h, latent.probs, mlps[0].first.table], allow_unused=True
+    )
+    assert h_grad is None and torch.count_nonzero(probs_grad) == 0 and table_grad.abs().sum() > 0
+
+
 def test_table_gradient_paths_agree_for_small_and_large_batches():
     from d2a_core.agents.dreamer.latent import table_gradient
 

@@ -301,7 +301,8 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     """The fused readouts inside the imagination loop (actor, reward and critic first layers
     with gradient, the continue head without, the last state read without the actor) must give
     the rewards, continue flags, values and actor gradients of evaluating every head on every
-    imagined state separately, as a dense layer on concat(h, straight-through one-hot z)."""
+    imagined state separately, as a dense layer on concat(h, straight-through one-hot z), with
+    the actor reading each state through a stop-gradient (DreamerV3's actor(sg(s)))."""
 
     agent = make_agent(seed=3)
     fill_random(agent, 40)
@@ -329,7 +330,8 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
 
     def policy(latent, first):
         assert first is None
-        action, entropy = behavior.actor.sample_from_output(dense_mlp(behavior.actor.net, latent), next(noise))
+        # actor(sg(s)): the explicit detach is the reference for the fused stop-gradient.
+        action, entropy = behavior.actor.sample_from_output(dense_mlp(behavior.actor.net, latent.detach()), next(noise))
         return action, {"entropy": entropy}
 
     with frozen(world_model, behavior.critic):
@@ -361,3 +363,71 @@ def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random
     for a, b in zip(merged, reference):
         assert b.abs().sum() > 0
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_imagined_actions_have_no_gradient_through_the_actor_input(make_agent, fill_random):
+    """DreamerV3 trains the actor on actor(sg(s)): in imagination each action depends on the
+    actor's weights and its noise, never on the state through the actor's input. So the actions
+    have no gradient with respect to the start state (h and the latent probabilities), while the
+    rewards and values still do (through the dynamics), and d(actor loss)/d(actor) equals a plain
+    autograd reference whose actor reads `.detach()`ed states. The old fused layer sent the
+    actor's input gradient into h and the probabilities, which this test catches."""
+    agent = make_agent(seed=4)
+    fill_random(agent, 40)
+    for _ in range(2):  # trained weights: zero-initialised output layers would hide the path
+        agent.train_step()
+    behavior, world_model = agent.behavior, agent.world_model
+    batch = {k: torch.as_tensor(v) for k, v in agent.replay.sample(4, 8).items()}
+    observed = world_model.loss(batch, torch.Generator().manual_seed(0)).observed.latent.reshape(-1)
+    h = observed.h.detach().clone().requires_grad_(True)
+    logits = torch.randn(*observed.index.shape, agent.config.classes, generator=torch.Generator().manual_seed(1))
+    probs = torch.softmax(logits, -1).requires_grad_(True)  # any probabilities: only the path matters
+    start = Latent(h, observed.index, probs)
+
+    imagined, reward, cont, values, _ = behavior._imagine(world_model, start, torch.Generator().manual_seed(5))
+    actions = imagined.actions
+    assert actions.requires_grad  # gradient to the actor's weights
+    # Each action alone, then all together: no path from the start state through the actor's input.
+    for t in (0, actions.shape[0] - 1):
+        grads = torch.autograd.grad(actions[t].sum(), [h, probs], retain_graph=True, allow_unused=True)
+        for grad in grads:
+            assert grad is None or torch.count_nonzero(grad) == 0, f"action {t} depends on the start state"
+    probe = torch.randn(actions.shape, generator=torch.Generator().manual_seed(2))
+    grads = torch.autograd.grad((actions * probe).sum() + imagined.extras["entropy"].sum(), [h, probs],
+                                retain_graph=True, allow_unused=True)
+    for grad in grads:
+        assert grad is None or torch.count_nonzero(grad) == 0
+    # The dynamics and the heads still carry the returns' gradient to the states.
+    dynamics = torch.autograd.grad(reward.sum() + values.sum(), [h, probs], retain_graph=True)
+    assert all(grad.abs().sum() > 0 for grad in dynamics)
+
+    # The same rollout with the actor explicitly reading detached states through plain autograd
+    # (no fused layer, every head on the dense straight-through features).
+    horizon, n, classes = agent.config.imag_horizon, h.shape[0], agent.config.classes
+    generator = torch.Generator().manual_seed(5)
+    noise = iter(behavior.actor.noise((horizon, n), generator, h.device))
+
+    def dense_mlp(mlp, state):
+        weight = torch.cat((mlp.first.dense_weight, mlp.first.table.t()), 1)
+        return mlp.finish(F.linear(state.dense(classes), weight))
+
+    def policy(latent, first):
+        assert first is None
+        raw = dense_mlp(behavior.actor.net, Latent(latent.h.detach(), latent.index, None))
+        action, entropy = behavior.actor.sample_from_output(raw, next(noise))
+        return action, {"entropy": entropy}
+
+    with frozen(world_model, behavior.critic):
+        plain = world_model.rssm.imagine(policy, start, horizon, generator)
+        plain_reward = torch.stack([world_model.twohot.mean(dense_mlp(world_model.reward_head, s)) for s in plain.states[1:]])
+        plain_values = torch.stack([behavior.twohot.mean(dense_mlp(behavior.critic, s)) for s in plain.states])
+    assert torch.equal(actions, plain.actions)
+    actor_params = list(behavior.actor.parameters())
+    weights = torch.linspace(0.5, 1.5, horizon).unsqueeze(-1)
+    objective = (weights * (reward - values[:-1] + 0.1 * imagined.extras["entropy"])).sum()
+    plain_objective = (weights * (plain_reward - plain_values[:-1] + 0.1 * plain.extras["entropy"])).sum()
+    fused_grads = torch.autograd.grad(objective, actor_params)
+    plain_grads = torch.autograd.grad(plain_objective, actor_params)
+    for fused, reference in zip(fused_grads, plain_grads):
+        assert reference.abs().sum() > 0
+        assert torch.allclose(fused, reference, rtol=1e-4, atol=1e-6)

@@ -222,7 +222,10 @@ class Behavior(nn.Module):
         actor_net = self.actor.net
 
         def policy(latent: Latent, first: Tensor | None) -> tuple[Tensor, dict[str, Tensor]]:
-            raw = actor_net.finish(first) if first is not None else actor_net(latent)
+            # actor(sg(s)) as in DreamerV3: `first` is read from the stop-gradient state inside
+            # the fused loop (RSSM.imagine), and the plain path detaches the state itself, so
+            # the actor's objective never differentiates through its own later inputs.
+            raw = actor_net.finish(first) if first is not None else actor_net(latent.detach())
             action, entropy = self.actor.sample_from_output(raw, next(noise))
             return action, {"entropy": entropy}
 

@@ -91,13 +91,16 @@ class Latent(NamedTuple):
 class _OneHotMatmul(torch.autograd.Function):
     """out = onehot(index) @ joined, where `joined` is the detached column-concatenation of
     `tables`: the forward is one embedding-bag, the gradient of the one-hot goes to `probs`
-    through one matmul, and each table that needs one gets its own gradient."""
+    through one matmul, and each table that needs one gets its own gradient. The first
+    `stopped` columns read the one-hot through a stop-gradient: their gradient reaches their
+    tables only, never `probs` (they are left out of the backward matmul)."""
 
     @staticmethod
-    def forward(ctx, index: Tensor, probs: Tensor, joined: Tensor, *tables: Tensor) -> Tensor:  # type: ignore[override]
+    def forward(ctx, index: Tensor, probs: Tensor, joined: Tensor, stopped: int, *tables: Tensor) -> Tensor:  # type: ignore[override]
         ctx.save_for_backward(index, joined)
         ctx.sizes = [table.shape[1] for table in tables]
         ctx.probs_dtype = probs.dtype
+        ctx.stopped = stopped
         return F.embedding_bag(index, joined, mode="sum")
 
     @staticmethod
@@ -106,11 +109,15 @@ class _OneHotMatmul(torch.autograd.Function):
         grad = grad.to(joined.dtype)
         grad_probs = None
         if ctx.needs_input_grad[1]:
-            grad_probs = (grad @ joined.t()).to(ctx.probs_dtype)
+            s = ctx.stopped
+            if s >= joined.shape[1]:
+                grad_probs = grad.new_zeros(grad.shape[0], joined.shape[0]).to(ctx.probs_dtype)
+            else:
+                grad_probs = (grad[:, s:] @ joined[:, s:].t()).to(ctx.probs_dtype)
         grad_tables: list[Tensor | None] = []
         for k, piece in enumerate(grad.split(ctx.sizes, 1)):
-            grad_tables.append(table_gradient(index, joined.shape[0], piece) if ctx.needs_input_grad[3 + k] else None)
-        return (None, grad_probs, None, *grad_tables)
+            grad_tables.append(table_gradient(index, joined.shape[0], piece) if ctx.needs_input_grad[4 + k] else None)
+        return (None, grad_probs, None, None, *grad_tables)
 
 
 class _FirstLayerWeightGradient(torch.autograd.Function):
@@ -160,15 +167,25 @@ class Readout:
 
     `value_only` MLPs are read in a separate pass without gradient: their outputs are used as
     values only (e.g. the continue head's mode), and keeping their columns out of the fused
-    layer keeps them out of its backward matmul."""
+    layer keeps them out of its backward matmul.
+
+    The first `input_stopped` of `mlps` read the states through a stop-gradient: their outputs
+    carry gradient to their own first-layer weights only, never into h or the latent
+    probabilities (the actor in imagination, DreamerV3's actor(sg(s)); see `RSSM.imagine`).
+    Their z columns stay in the fused forward but out of the backward matmul to the
+    probabilities."""
 
     def __init__(
         self,
         mlps: list[LatentMLP],
         extra_tables: list[Tensor] | None = None,
         value_only: list[LatentMLP] | None = None,
+        input_stopped: int = 0,
     ) -> None:
+        if not 0 <= input_stopped <= len(mlps):
+            raise ValueError(f"input_stopped={input_stopped} outside 0..{len(mlps)}")
         self.count = len(mlps)
+        self.stopped_columns = sum(mlp.first.table.shape[1] for mlp in mlps[:input_stopped])
         self.tables = [mlp.first.table for mlp in mlps] + (extra_tables or [])
         self.table_sizes = [table.shape[1] for table in self.tables]
         device = (self.tables or [m.first.table for m in value_only or []])[0].device
@@ -176,12 +193,17 @@ class Readout:
         # The h parts are joined separately for weights that need gradients and those that do
         # not (e.g. the frozen world model's heads in imagination): one joined weight would get
         # a full weight gradient, most of it thrown away.
+        # Input-stopped MLPs form their own groups, read from a detached h.
         weights = [mlp.first.dense_weight for mlp in mlps]
         self.groups = []
-        for wanted in (True, False):
-            members = [k for k, w in enumerate(weights) if w.requires_grad == wanted]
-            if members:
-                self.groups.append((members, _join([weights[k] for k in members], 0), [weights[k].shape[0] for k in members]))
+        for stopped in (True, False):
+            for wanted in (True, False):
+                members = [
+                    k for k, w in enumerate(weights) if w.requires_grad == wanted and (k < input_stopped) == stopped
+                ]
+                if members:
+                    joined = _join([weights[k] for k in members], 0)
+                    self.groups.append((members, joined, [weights[k].shape[0] for k in members], stopped))
         self.value_sizes = [mlp.first.table.shape[1] for mlp in value_only or []]
         if value_only:
             with torch.no_grad():
@@ -196,11 +218,12 @@ class Readout:
         outputs: list[Tensor] = []
         if self.tables:
             probs = _flat_probs(latent.probs, index)
-            sparse = _OneHotMatmul.apply(index, probs, self.joined, *self.tables)
+            sparse = _OneHotMatmul.apply(index, probs, self.joined, self.stopped_columns, *self.tables)
             sparse = sparse.reshape(*lead, sparse.shape[-1]).split(self.table_sizes, -1)
             dense: list[Tensor | None] = [None] * self.count
-            for members, weight, sizes in self.groups:
-                for k, part in zip(members, F.linear(latent.h, weight).split(sizes, -1)):
+            for members, weight, sizes, stopped in self.groups:
+                h = latent.h.detach() if stopped else latent.h
+                for k, part in zip(members, F.linear(h, weight).split(sizes, -1)):
                     dense[k] = part
             outputs = [d + s for d, s in zip(dense, sparse)] + list(sparse[self.count :])
         if self.value_sizes:
@@ -263,7 +286,7 @@ class OneHotLinear(nn.Module):
                 onehot = straight_through(onehot, probs.reshape(onehot.shape).to(onehot.dtype))
             return (onehot @ self.table).reshape(*lead, self.table.shape[1])
         joined = self.compute_table() if table is None else table
-        sparse = _OneHotMatmul.apply(flat_index, _flat_probs(probs, flat_index), joined, self.table)
+        sparse = _OneHotMatmul.apply(flat_index, _flat_probs(probs, flat_index), joined, 0, self.table)
         return sparse.reshape(*lead, sparse.shape[-1])
 
 

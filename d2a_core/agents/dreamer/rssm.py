@@ -25,8 +25,9 @@ from .nets import NormLayer, init_linear_
 
 ImaginationPolicy = Callable[[Latent, Tensor | None], tuple[Tensor, dict[str, Tensor]]]
 """Maps a state of leading shape (N,) and the first-layer output of the policy's MLP at that
-state (None unless `RSSM.imagine` was given the MLP) to (action (N, A), extras to stack over
-time)."""
+state (None unless `RSSM.imagine` was given the MLP; computed on the stop-gradient state) to
+(action (N, A), extras to stack over time). A policy that reads the state itself should read
+`latent.detach()` (actor(sg(s)))."""
 
 
 @dataclass
@@ -221,7 +222,10 @@ class RSSM(nn.Module):
         value_readouts: list[LatentMLP] | None = None,
     ) -> Imagined:
         """Roll the prior forward `horizon` steps from `start` (leading shape (N,)) with actions
-        from `policy`. Gradients flow through states, straight-through samples and actions.
+        from `policy`. Gradients flow through states, straight-through samples and actions,
+        except into the policy's input: the policy reads each state through a stop-gradient
+        (DreamerV3's actor(sg(s))), so `policy_readout`'s first layer sends gradient to its own
+        weights only, and a `policy` that reads the state itself must detach it.
 
         MLPs that read imagined states have their first layers evaluated inside the loop, fused
         with each other and with the RSSM's input layer (one matmul per state for all of them,
@@ -232,7 +236,12 @@ class RSSM(nn.Module):
         caller to finish the MLPs."""
         readouts, value_readouts = readouts or [], value_readouts or []
         fused_mlps = ([policy_readout] if policy_readout is not None else []) + readouts
-        fused = Readout(fused_mlps, [self.img_in.table], value_readouts) if fused_mlps else None
+        # The actor reads the state through a stop-gradient, as in DreamerV1-V3 (actor(sg(s))):
+        # without it the actor's objective would also differentiate through its own inputs at
+        # every later step, moving h and the latent probabilities to change later actions. The
+        # returns still reach each action through the dynamics (later states, rewards, values).
+        stopped = 1 if policy_readout is not None else 0
+        fused = Readout(fused_mlps, [self.img_in.table], value_readouts, input_stopped=stopped) if fused_mlps else None
         last = Readout(readouts, None, value_readouts) if readouts or value_readouts else None
         skip = len(fused_mlps) - len(readouts)  # the policy's output is not a returned readout
         uniform = self.uniform((horizon, start.h.shape[0]), generator, start.h.device)
