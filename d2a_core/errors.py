@@ -42,3 +42,15 @@ class TrainingError(D2AError):
     """Training cannot continue (for example a non-finite loss)."""
 
     exit_code = 1
+
+
+class AmbiguousRefError(UsageError):
+    """An id prefix matches several artifacts. Not a NotFoundError: nothing is missing, so callers
+    that fall back to another lookup on NotFoundError must not swallow it."""
+
+
+class StoreError(D2AError):
+    """The store's filesystem refused an operation (read-only, full, a file where a directory
+    belongs). The message names the path and the OS reason."""
+
+    exit_code = 1

@@ -8,7 +8,7 @@ import stat
 import pytest
 
 from d2a_core.artifacts import Store, artifact_id
-from d2a_core.errors import IntegrityError, NotFoundError, UsageError
+from d2a_core.errors import AmbiguousRefError, IntegrityError, NotFoundError, UsageError
 
 
 def test_round_trip_files_and_manifest(store_dir, tmp_path):
@@ -108,11 +108,12 @@ def test_ambiguous_prefix_is_reported(store_dir):
         seen[art_id[:4]] = art_id
     else:
         pytest.fail("no prefix clash found")
-    with pytest.raises(NotFoundError, match="ambiguous"):
+    # a usage error, but not a NotFoundError: a caller falling back on "not found" must not hide it
+    with pytest.raises(AmbiguousRefError, match="ambiguous"):
         store.resolve(art_id[:4])
     assert store.resolve(art_id[:12]) == art_id
-    with pytest.raises(NotFoundError):
-        store.resolve(art_id[:3])  # shorter than the minimum prefix
+    with pytest.raises(NotFoundError, match="at least 4 characters"):
+        store.resolve(art_id[:3])  # shorter than the minimum prefix: say so
 
 
 def test_verify_detects_corrupted_blob_and_manifest(store_dir):

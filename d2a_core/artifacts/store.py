@@ -5,14 +5,26 @@ Layout under the store root::
     objects/ab/abcdef...        immutable blobs named by their sha256 (read-only files)
     manifests/ab/<id>.json      one canonical manifest per artifact (read-only)
     refs/<alias>.ref            aliases such as track/hairpin -> an artifact id
+    leases/<pid>-<token>.json   artifacts a live process is using (flock-ed by that process)
+    runs/<key>/holds.json       artifacts a (possibly killed) training run's state points at
+    quarantine/<when>/...       unreadable files moved aside by `verify --repair`
     tmp/                        files being written (same filesystem, so renames are atomic)
     lock                        flock: writers share it, gc takes it exclusively
 
 Safety: every file is written to tmp/, fsynced, then renamed into place, so a reader never sees
 half a file. An artifact becomes visible only when its manifest lands, after all its blobs; a
 ref is written only to an existing manifest. A process killed mid-write leaves only orphan
-temp files, which `gc` removes. Writers hold a shared lock for their whole life and `gc` an
+temp files, which `gc` removes. Writers hold a shared lock while they write and `gc` an
 exclusive one, so gc never deletes a blob that a live writer is about to reference.
+
+What gc keeps (its roots): every alias, every live lease (`Store.lease()`: a process that is
+building something from several artifacts registers each one it creates or resolves, so nothing
+it still needs disappears between two steps), and every run hold (`Store.hold_run()`: a run's
+saved state names artifacts it resumes from, after its process is gone). If gc cannot read one
+of its roots it deletes nothing: it cannot tell what that root protects.
+
+Reads check hashes: a manifest is re-hashed against its id when it is loaded, and a blob when
+`path()`, `read_bytes()` or `export()` hands it out.
 """
 
 from __future__ import annotations
@@ -24,26 +36,33 @@ import hashlib
 import json
 import os
 import re
+import secrets
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Iterable, Iterator
 
 from d2a_core.artifacts.manifest import (
+    IDENTITY_FIELDS,
     MANIFEST_FORMAT,
     Artifact,
     artifact_id,
     canonical_json,
     provenance,
 )
-from d2a_core.errors import IntegrityError, NotFoundError, UsageError
+from d2a_core.errors import AmbiguousRefError, IntegrityError, NotFoundError, StoreError, UsageError
 
 CHUNK = 1 << 20
 HEX = re.compile(r"^[0-9a-f]+$")
+FULL_ID = re.compile(r"^[0-9a-f]{64}$")
+REF_CONTENT = re.compile(r"^([0-9a-f]{64})\n?$")  # exactly what tag() writes: any flipped byte fails
 ALIAS = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
 FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
 MIN_PREFIX = 4
+HOLDS_FORMAT = 1
+HOLDS_FILE = "holds.json"
 
 
 def _fsync_dir(path: Path) -> None:
@@ -64,21 +83,47 @@ def sha256_file(path: Path) -> tuple[str, int]:
     return digest.hexdigest(), size
 
 
+def alias_problem(alias: str) -> str | None:
+    """Why `alias` cannot be an alias, or None. Used up front by commands that will tag."""
+    if not ALIAS.match(alias) or any(part in (".", "..") for part in alias.split("/")):
+        return "use letters, digits, '._+-' in '/'-separated parts, each starting with a letter or digit"
+    if HEX.match(alias) and len(alias) >= MIN_PREFIX:
+        return "a hex string would read as an artifact id"
+    return None
+
+
+def _os_reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+@contextlib.contextmanager
+def _storage(what: str, path: Path | None = None) -> Iterator[None]:
+    """Turn an OSError from the filesystem into a StoreError naming the path and the OS reason."""
+    try:
+        yield
+    except OSError as exc:
+        where = exc.filename or path
+        raise StoreError(f"{what}: {where}: {_os_reason(exc)}") from None
+
+
 class _HashingWriter:
     """A binary file object that hashes what it writes (so a blob is hashed in one pass)."""
 
-    def __init__(self, fh: IO[bytes]):
+    def __init__(self, fh: IO[bytes], path: Path):
         self._fh = fh
+        self._path = path
         self._digest = hashlib.sha256()
         self.size = 0
 
     def write(self, data: bytes) -> int:
         self._digest.update(data)
         self.size += len(data)
-        return self._fh.write(data)
+        with _storage("cannot write to the store", self._path):
+            return self._fh.write(data)
 
     def flush(self) -> None:
-        self._fh.flush()
+        with _storage("cannot write to the store", self._path):
+            self._fh.flush()
 
     def hexdigest(self) -> str:
         return self._digest.hexdigest()
@@ -95,9 +140,13 @@ class _HashingWriter:
 class VerifyProblem:
     artifact: str | None
     what: str
+    alias: str | None = None
+    path: str | None = None
+    repaired: str | None = None  # what `verify --repair` did about it
 
     def as_dict(self) -> dict[str, Any]:
-        return {"artifact": self.artifact, "problem": self.what}
+        return {"artifact": self.artifact, "alias": self.alias, "problem": self.what, "path": self.path,
+                "repaired": self.repaired}
 
 
 @dataclass
@@ -105,6 +154,8 @@ class GcReport:
     artifacts: list[str] = field(default_factory=list)
     blobs: list[str] = field(default_factory=list)
     temp_files: list[str] = field(default_factory=list)
+    stale_leases: list[str] = field(default_factory=list)
+    held: dict[str, list[str]] = field(default_factory=dict)  # root -> artifacts it keeps (leases, runs)
     bytes_freed: int = 0
     dry_run: bool = False
 
@@ -114,8 +165,34 @@ class GcReport:
             "artifacts": self.artifacts,
             "blobs": len(self.blobs),
             "temp_files": len(self.temp_files),
+            "stale_leases": len(self.stale_leases),
+            "held": self.held,
             "bytes_freed": self.bytes_freed,
         }
+
+
+class _BadFile(Exception):
+    """A store file that exists but cannot be used (carries the reason for reports)."""
+
+
+class Lease:
+    """Artifacts a live process uses, in `leases/<pid>-<token>.json`, flock-ed while it lives.
+
+    gc treats the ids of a lease whose lock is held as roots; a lease whose lock it can take
+    belongs to a dead process and is removed. The file is rewritten in place (never renamed):
+    the lock belongs to its inode.
+    """
+
+    def __init__(self, path: Path, fd: int):
+        self.path = path
+        self.fd = fd
+        self.ids: list[str] = []
+        self.depth = 1
+
+    def write(self) -> None:
+        data = json.dumps({"pid": os.getpid(), "artifacts": self.ids}).encode()
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, data, 0)
 
 
 class Store:
@@ -123,6 +200,10 @@ class Store:
 
     def __init__(self, root: str | os.PathLike[str]):
         self.root = Path(root)
+        self._lock_depth = 0
+        self._lock_fd: int | None = None
+        self._lease: Lease | None = None
+        self._verified: dict[str, tuple[int, int, int, int]] = {}  # blob -> stat it was hashed at
 
     # ----------------------------------------------------------------------------- layout
     @property
@@ -141,6 +222,14 @@ class Store:
     def _tmp(self) -> Path:
         return self.root / "tmp"
 
+    @property
+    def _leases(self) -> Path:
+        return self.root / "leases"
+
+    @property
+    def _runs(self) -> Path:
+        return self.root / "runs"
+
     def _blob_path(self, digest: str) -> Path:
         return self._objects / digest[:2] / digest
 
@@ -150,37 +239,195 @@ class Store:
     def _ref_path(self, alias: str) -> Path:
         return self._refs / f"{alias}.ref"
 
+    def run_dir(self, key: str) -> Path:
+        """The directory a training run keeps its resumable state in."""
+        if not re.match(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", key):
+            raise UsageError(f"invalid run key {key!r}")
+        return self._runs / key
+
+    def _check_root(self) -> None:
+        """Reads of a store path that is a file must fail, not report an empty store."""
+        if self.root.exists() and not self.root.is_dir():
+            raise StoreError(f"store {self.root} is not a directory")
+
     def _ensure_layout(self) -> None:
-        for path in (self._objects, self._manifests, self._refs, self._tmp):
-            path.mkdir(parents=True, exist_ok=True)
+        self._check_root()
+        for path in (self._objects, self._manifests, self._refs, self._tmp, self._leases):
+            with _storage(f"cannot create the store layout in {self.root}", path):
+                path.mkdir(parents=True, exist_ok=True)
 
     @contextlib.contextmanager
-    def _lock(self, exclusive: bool) -> Iterator[None]:
-        self._ensure_layout()
-        fd = os.open(self.root / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+    def _lock(self, exclusive: bool, write: bool = True) -> Iterator[None]:
+        """The store lock (re-entrant within this Store object: shared inside shared is a no-op).
+
+        `write=False` (gc --dry-run) also works on a read-only store: nothing can write there.
+        """
+        if self._lock_depth:
+            self._lock_depth += 1
+            try:
+                yield
+            finally:
+                self._lock_depth -= 1
+            return
+        lock_path = self.root / "lock"
+        if write:
+            self._ensure_layout()
+            with _storage("cannot open the store lock", lock_path):
+                fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        else:
+            self._check_root()
+            try:
+                fd = os.open(lock_path, os.O_RDONLY)
+            except OSError:
+                fd = -1  # no lock file (never written) or unreadable: no writer can be using it
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            if fd >= 0:
+                fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            self._lock_depth = 1
             yield
         finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
+            self._lock_depth = 0
+            if fd >= 0:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+                os.close(fd)
 
     def _temp_file(self, suffix: str = "") -> tuple[IO[bytes], Path]:
-        fd, name = tempfile.mkstemp(dir=self._tmp, prefix=f"{os.getpid()}-", suffix=suffix)
+        with _storage("cannot write to the store", self._tmp):
+            fd, name = tempfile.mkstemp(dir=self._tmp, prefix=f"{os.getpid()}-", suffix=suffix)
         return os.fdopen(fd, "wb"), Path(name)
 
-    def _install(self, tmp: Path, final: Path) -> None:
-        """Move a complete, fsynced temp file into place read-only; keep an existing copy."""
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.chmod(tmp, 0o444)
+    def _blob_ok(self, path: Path, digest: str) -> bool:
         try:
-            os.link(tmp, final)  # fails if present: content-addressed, so the present copy is equal
-        except FileExistsError:
-            pass
-        else:
-            _fsync_dir(final.parent)
+            return sha256_file(path)[0] == digest
+        except OSError:
+            return False
+
+    def _manifest_ok(self, path: Path, art_id: str) -> bool:
+        try:
+            self._parse_manifest(path.read_bytes(), art_id)
+            return True
+        except (OSError, _BadFile):
+            return False
+
+    def _install(self, tmp: Path, final: Path, valid) -> None:
+        """Move a complete, fsynced temp file into place read-only.
+
+        An existing copy is kept when `valid(final)` (content-addressed, so it is equal) and
+        replaced when it is not: a rebuild repairs a corrupted blob or manifest.
+        """
+        with _storage("cannot write to the store", final):
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.chmod(tmp, 0o444)
+            try:
+                os.link(tmp, final)  # fails if present
+            except FileExistsError:
+                if not valid(final):
+                    os.replace(tmp, final)
+                    _fsync_dir(final.parent)
+            else:
+                _fsync_dir(final.parent)
+            finally:
+                tmp.unlink(missing_ok=True)
+
+    # ----------------------------------------------------------------------------- leases
+    @contextlib.contextmanager
+    def lease(self) -> Iterator[Lease]:
+        """Hold every artifact this Store creates, resolves or tags inside the block against gc.
+
+        Re-entrant. The lease ends with the block, or with the process: a killed process's
+        lock is released by the kernel and gc then removes its lease file.
+        """
+        if self._lease is not None:
+            self._lease.depth += 1
+            try:
+                yield self._lease
+            finally:
+                self._lease.depth -= 1
+            return
+        with self._lock(exclusive=False):
+            # created and locked under the store lock, so gc never sees it unlocked
+            path = self._leases / f"{os.getpid()}-{secrets.token_hex(6)}.json"
+            with _storage("cannot write to the store", path):
+                fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                lease = Lease(path, fd)
+                lease.write()
+        self._lease = lease
+        try:
+            yield lease
         finally:
-            tmp.unlink(missing_ok=True)
+            self._lease = None
+            with contextlib.suppress(OSError):
+                path.unlink()
+            os.close(fd)
+
+    def _register(self, art_id: str) -> None:
+        """Add an id to the active lease; call with the store lock held."""
+        lease = self._lease
+        if lease is None or art_id in lease.ids:
+            return
+        lease.ids.append(art_id)
+        with _storage("cannot write to the store", lease.path):
+            lease.write()
+
+    def _hold(self, art_id: str, ref: str) -> None:
+        """Register a resolved id in the active lease, then make sure gc had not removed it already."""
+        if self._lease is None or art_id in self._lease.ids:
+            return
+        with self._lock(exclusive=False):
+            self._register(art_id)
+            if not self._manifest_path(art_id).is_file():
+                raise NotFoundError(f"{ref!r}: artifact {art_id} was removed from store {self.root} meanwhile")
+
+    # ----------------------------------------------------------------------------- run holds
+    def hold_run(self, key: str, ids: Iterable[str]) -> None:
+        """Record that run `key`'s saved state points at `ids`: gc keeps them until release_run.
+
+        Writes `runs/<key>/holds.json` = {"format": 1, "artifacts": [ids]} atomically. Call it
+        *before* saving a state that names a new artifact, so the holds always cover the state.
+        """
+        ids = list(dict.fromkeys(ids))
+        path = self.run_dir(key) / HOLDS_FILE
+        with self._lock(exclusive=False):
+            missing = [i for i in ids if not FULL_ID.match(i) or not self._manifest_path(i).is_file()]
+            if missing:
+                raise NotFoundError(f"run {key[:12]}: cannot hold {', '.join(m[:12] for m in missing)}: "
+                                    f"not in store {self.root}")
+            for art_id in ids:
+                self._register(art_id)
+            with _storage("cannot write the run state", path):
+                path.parent.mkdir(parents=True, exist_ok=True)
+                fh, tmp = self._temp_file(".holds")
+                with fh:
+                    fh.write(canonical_json({"format": HOLDS_FORMAT, "artifacts": ids}))
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.replace(tmp, path)
+                _fsync_dir(path.parent)
+
+    def release_run(self, key: str) -> None:
+        """Drop run `key`'s holds (its artifacts stay while an alias or another root reaches them)."""
+        path = self.run_dir(key) / HOLDS_FILE
+        with self._lock(exclusive=False), _storage("cannot write the run state", path):
+            path.unlink(missing_ok=True)
+
+    def run_holds(self) -> tuple[dict[str, list[str]], list[VerifyProblem]]:
+        """Each run key -> the ids its holds.json names, and the holds files that cannot be read."""
+        holds: dict[str, list[str]] = {}
+        bad: list[VerifyProblem] = []
+        if not self._runs.is_dir():
+            return holds, bad
+        for path in sorted(self._runs.glob(f"*/{HOLDS_FILE}")):
+            try:
+                data = json.loads(path.read_bytes())
+                ids = data["artifacts"]
+                if data.get("format") != HOLDS_FORMAT or not all(isinstance(i, str) and FULL_ID.match(i) for i in ids):
+                    raise ValueError("not a list of artifact ids")
+            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+                bad.append(VerifyProblem(None, f"run holds file unreadable ({exc})", path=str(path)))
+                continue
+            holds[path.parent.name] = ids
+        return holds, bad
 
     # ----------------------------------------------------------------------------- writing
     def create(
@@ -213,79 +460,190 @@ class Store:
         return writer.artifact
 
     def _commit(self, manifest: dict[str, Any], blobs: dict[str, Path]) -> Artifact:
+        """Land blobs, then the manifest. Called with the shared store lock held."""
+        # an input resolved before the lock may have been collected since: refuse a dangling lineage
+        gone = [i for i in manifest["inputs"] if not self._manifest_path(i).is_file()]
+        if gone:
+            raise NotFoundError(f"input artifact(s) {', '.join(g[:12] for g in gone)} left store {self.root} "
+                                "while this artifact was being written")
         for digest, tmp in blobs.items():
-            self._install(tmp, self._blob_path(digest))
+            self._install(tmp, self._blob_path(digest), lambda p, d=digest: self._blob_ok(p, d))
         art_id = artifact_id(manifest)
         stored = dict(manifest, id=art_id)
+        # the id covers only the identity; this covers every byte, provenance included
+        stored["sha256"] = hashlib.sha256(canonical_json(stored)).hexdigest()
         fh, tmp = self._temp_file(".json")
-        with fh:
+        with fh, _storage("cannot write to the store", tmp):
             fh.write(canonical_json(stored))
             fh.flush()
             os.fsync(fh.fileno())
-        self._install(tmp, self._manifest_path(art_id))
+        self._install(tmp, self._manifest_path(art_id), lambda p: self._manifest_ok(p, art_id))
+        self._register(art_id)
         return self.get(art_id)
 
     # ----------------------------------------------------------------------------- reading
     def _all_ids(self) -> list[str]:
+        self._check_root()
         if not self._manifests.is_dir():
             return []
-        return sorted(p.stem for p in self._manifests.glob("??/*.json"))
+        return sorted(p.stem for p in self._manifests.glob("??/*.json") if FULL_ID.match(p.stem))
 
-    def refs(self) -> dict[str, str]:
-        """All aliases and the ids they point to."""
+    def _read_ref_file(self, path: Path) -> str:
+        try:
+            text = path.read_bytes().decode("ascii")
+        except IsADirectoryError:
+            raise _BadFile("is a directory, not an alias file") from None
+        except OSError as exc:
+            raise _BadFile(f"cannot be read ({_os_reason(exc)})") from None
+        except UnicodeDecodeError:
+            raise _BadFile("does not hold an artifact id (binary data)") from None
+        match = REF_CONTENT.match(text)
+        if not match:
+            raise _BadFile(f"does not hold an artifact id ({text.strip()[:20]!r})")
+        return match.group(1)
+
+    def _scan_refs(self) -> tuple[dict[str, str], list[VerifyProblem]]:
+        """Readable aliases -> ids, and a problem for each alias file that cannot be read."""
+        self._check_root()
+        good: dict[str, str] = {}
+        bad: list[VerifyProblem] = []
         if not self._refs.is_dir():
-            return {}
-        out = {}
+            return good, bad
         for path in sorted(self._refs.rglob("*.ref")):
             alias = path.relative_to(self._refs).as_posix()[: -len(".ref")]
-            out[alias] = path.read_text(encoding="ascii").strip()
-        return dict(sorted(out.items()))
+            try:
+                good[alias] = self._read_ref_file(path)
+            except _BadFile as exc:
+                bad.append(VerifyProblem(None, f"alias {alias!r}: {path} {exc}", alias=alias, path=str(path)))
+        return dict(sorted(good.items())), bad
+
+    def refs(self) -> dict[str, str]:
+        """All readable aliases and the ids they point to (`verify` reports the unreadable ones)."""
+        return self._scan_refs()[0]
 
     def resolve(self, ref: str) -> str:
         """An alias, a full id or a unique id prefix -> the full artifact id."""
         ref = ref.strip()
+        self._check_root()
         if ALIAS.match(ref):
             path = self._ref_path(ref)
-            if path.is_file():
-                return path.read_text(encoding="ascii").strip()
+            if path.exists() or path.is_symlink():
+                try:
+                    art_id = self._read_ref_file(path)
+                except _BadFile as exc:
+                    raise IntegrityError(
+                        f"alias {ref!r}: {path} {exc}; re-tag it (d2a artifacts tag ID {ref}) or run "
+                        "d2a artifacts verify --repair") from None
+                if not self._manifest_path(art_id).is_file():
+                    raise IntegrityError(
+                        f"alias {ref!r} points to artifact {art_id[:12]}, which is not in store {self.root} "
+                        "(collected or quarantined); rebuild it or remove the alias with verify --repair")
+                self._hold(art_id, ref)
+                return art_id
         if HEX.match(ref) and len(ref) >= MIN_PREFIX:
             if len(ref) == 64 and self._manifest_path(ref).is_file():
+                self._hold(ref, ref)
                 return ref
             matches = [i for i in self._all_ids() if i.startswith(ref)]
             if len(matches) == 1:
+                self._hold(matches[0], ref)
                 return matches[0]
             if len(matches) > 1:
                 shown = ", ".join(m[:12] for m in matches[:5])
-                raise NotFoundError(f"id prefix {ref!r} is ambiguous: it matches {len(matches)} artifacts ({shown})")
+                raise AmbiguousRefError(f"id prefix {ref!r} is ambiguous: it matches {len(matches)} artifacts "
+                                        f"({shown}); give more characters")
         known = list(self.refs()) + [i[:12] for i in self._all_ids()]
         close = difflib.get_close_matches(ref, known, n=3, cutoff=0.5)
-        hint = f"; closest known: {', '.join(close)}" if close else ""
+        if HEX.match(ref) and len(ref) < MIN_PREFIX:
+            close = [i for i in known if i.startswith(ref)][:3] or close
+            hint = f"; an id prefix needs at least {MIN_PREFIX} characters"
+            hint += f" (ids starting with it: {', '.join(close)})" if close else ""
+        else:
+            hint = f"; closest known: {', '.join(close)}" if close else ""
         raise NotFoundError(f"no artifact or alias {ref!r} in store {self.root}{hint}")
+
+    def _parse_manifest(self, data: bytes, art_id: str) -> dict[str, Any]:
+        try:
+            manifest = json.loads(data)
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise _BadFile(f"manifest is not valid JSON ({exc})") from None
+        if not isinstance(manifest, dict) or any(k not in manifest for k in (*IDENTITY_FIELDS, "id", "provenance")):
+            raise _BadFile("manifest is incomplete")
+        try:
+            actual = artifact_id(manifest)
+        except (TypeError, ValueError) as exc:
+            raise _BadFile(f"manifest is not canonical ({exc})") from None
+        if manifest["id"] != art_id or actual != art_id:
+            raise _BadFile("manifest does not match its id (modified)")
+        if not isinstance(manifest["files"], dict) or not isinstance(manifest["inputs"], list):
+            raise _BadFile("manifest is malformed")
+        # written canonically with a checksum of the whole file, so a flipped byte anywhere (the
+        # unhashed provenance too) is caught; manifests from before the checksum only get the id check
+        if "sha256" in manifest:
+            body = {k: v for k, v in manifest.items() if k != "sha256"}
+            if data != canonical_json(manifest) or hashlib.sha256(canonical_json(body)).hexdigest() != manifest["sha256"]:
+                raise _BadFile("manifest does not match its checksum (modified)")
+        prov = manifest["provenance"]
+        if not isinstance(prov, dict) or not isinstance(prov.get("created"), str):
+            raise _BadFile("manifest provenance is damaged")
+        return manifest
+
+    def _load_manifest(self, art_id: str, ref: str | None = None) -> dict[str, Any]:
+        path = self._manifest_path(art_id)
+        named = f"{ref!r} ({art_id[:12]})" if ref and ref != art_id else art_id
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise NotFoundError(f"artifact {named} is not in store {self.root}") from None
+        except OSError as exc:
+            raise StoreError(f"cannot read artifact {named}: {path}: {_os_reason(exc)}") from None
+        try:
+            return self._parse_manifest(data, art_id)
+        except _BadFile as exc:
+            raise IntegrityError(f"artifact {named}: {exc}; run d2a artifacts verify --repair") from None
 
     def get(self, ref: str) -> Artifact:
         art_id = self.resolve(ref)
-        path = self._manifest_path(art_id)
+        return Artifact(art_id, self._load_manifest(art_id, ref))
+
+    def _checked_blob(self, art: Artifact, name: str, ref: str) -> Path:
+        """The blob of one file, re-hashed unless it was hashed unchanged before in this process."""
+        info = art.files[name]
+        path = self._blob_path(info["sha256"])
+        named = f"artifact {art.id[:12]}" + (f" ({ref})" if ref != art.id else "")
         try:
-            manifest = json.loads(path.read_bytes())
+            st = path.stat()
         except FileNotFoundError:
-            raise NotFoundError(f"alias or id {ref!r} points to {art_id}, which is not in the store") from None
-        except json.JSONDecodeError as exc:
-            raise IntegrityError(f"artifact {art_id}: manifest is not valid JSON ({exc.msg})") from None
-        return Artifact(art_id, manifest)
+            raise IntegrityError(f"{named}: the blob of file {name!r} is missing; rebuild the artifact") from None
+        except OSError as exc:
+            raise StoreError(f"cannot read {named}: {path}: {_os_reason(exc)}") from None
+        stamp = (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+        if self._verified.get(info["sha256"]) == stamp:
+            return path
+        if st.st_size != info["size"] or not self._blob_ok(path, info["sha256"]):
+            raise IntegrityError(f"{named}: file {name!r} does not match its hash (corrupted blob "
+                                 f"{info['sha256'][:12]}); run d2a artifacts verify --repair, then rebuild it")
+        self._verified[info["sha256"]] = stamp
+        return path
 
     def path(self, ref: str, name: str) -> Path:
-        """Read-only path of one file of an artifact (for np.load, torch.load, ...)."""
+        """Read-only path of one file of an artifact (for np.load, torch.load, ...), hash-checked."""
+        art = self.get(ref)
+        if name not in art.files:
+            raise NotFoundError(f"artifact {art.id[:12]} ({art.kind}) has no file {name!r}; files: {sorted(art.files)}")
+        return self._checked_blob(art, name, ref)
+
+    def read_bytes(self, ref: str, name: str, verify: bool = True) -> bytes:
         art = self.get(ref)
         if name not in art.files:
             raise NotFoundError(f"artifact {art.id[:12]} ({art.kind}) has no file {name!r}; files: {sorted(art.files)}")
         path = self._blob_path(art.files[name]["sha256"])
-        if not path.is_file():
-            raise IntegrityError(f"artifact {art.id}: blob of {name!r} is missing")
-        return path
-
-    def read_bytes(self, ref: str, name: str, verify: bool = True) -> bytes:
-        art = self.get(ref)
-        data = self.path(art.id, name).read_bytes()
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise IntegrityError(f"artifact {art.id}: the blob of file {name!r} is missing; rebuild it") from None
+        except OSError as exc:
+            raise StoreError(f"cannot read artifact {art.id[:12]}: {path}: {_os_reason(exc)}") from None
         if verify and hashlib.sha256(data).hexdigest() != art.files[name]["sha256"]:
             raise IntegrityError(f"artifact {art.id}: file {name!r} does not match its hash")
         return data
@@ -294,19 +652,48 @@ class Store:
         return json.loads(self.read_bytes(ref, name))
 
     def export(self, ref: str, directory: str | os.PathLike[str]) -> list[Path]:
-        """Copy an artifact's files, under their own names, into `directory` (e.g. to open a log)."""
+        """Copy an artifact's files, under their own names, into `directory` (e.g. to open a log).
+
+        Each copy is hashed as it is written and removed again if it does not match.
+        """
         art = self.get(ref)
+        directory = Path(directory)
+        if directory.exists() and not directory.is_dir():
+            raise UsageError(f"export destination {directory} exists and is not a directory")
         out = []
         for name in sorted(art.files):
-            dst = Path(directory) / name
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(self.path(art.id, name), dst)
+            src = self._blob_path(art.files[name]["sha256"])
+            dst = directory / name
+            if dst.is_dir():
+                raise UsageError(f"export destination {dst} is a directory")
+            with _storage(f"cannot export {name!r}", dst):
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                digest = hashlib.sha256()
+                try:
+                    source = open(src, "rb")
+                except FileNotFoundError:
+                    raise IntegrityError(f"artifact {art.id}: the blob of file {name!r} is missing") from None
+                with source, open(dst, "wb") as sink:
+                    while chunk := source.read(CHUNK):
+                        digest.update(chunk)
+                        sink.write(chunk)
+            if digest.hexdigest() != art.files[name]["sha256"]:
+                dst.unlink(missing_ok=True)
+                raise IntegrityError(f"artifact {art.id[:12]}: file {name!r} does not match its hash (corrupted "
+                                     "blob); nothing was exported for it. Run d2a artifacts verify --repair")
             out.append(dst)
         return out
 
-    def list(self, kind: str | None = None) -> list[Artifact]:
-        """Artifacts (optionally of one kind), oldest first."""
-        arts = [self.get(i) for i in self._all_ids()]
+    def list(self, kind: str | None = None, unreadable: list[str] | None = None) -> list[Artifact]:
+        """Artifacts (optionally of one kind), oldest first. Unreadable manifests are skipped
+        (their ids go to `unreadable` when given); `verify` reports them."""
+        arts = []
+        for art_id in self._all_ids():
+            try:
+                arts.append(Artifact(art_id, self._load_manifest(art_id)))
+            except (IntegrityError, NotFoundError, StoreError):
+                if unreadable is not None:
+                    unreadable.append(art_id)
         if kind is not None:
             arts = [a for a in arts if a.kind == kind]
         return sorted(arts, key=lambda a: (a.created, a.id))
@@ -331,7 +718,10 @@ class Store:
         def node(art_id: str) -> dict[str, Any]:
             if art_id in seen:  # a DAG can share inputs; show each once in full
                 return {"id": art_id, "kind": seen[art_id]["kind"], "shared": True}
-            art = self.get(art_id)
+            try:
+                art = Artifact(art_id, self._load_manifest(art_id))
+            except (IntegrityError, NotFoundError) as exc:  # show the damage, keep the rest of the tree
+                return {"id": art_id, "kind": "?", "aliases": [], "labels": {}, "inputs": [], "problem": str(exc)}
             entry = {
                 "id": art.id,
                 "kind": art.kind,
@@ -347,82 +737,193 @@ class Store:
     # ----------------------------------------------------------------------------- refs
     def tag(self, ref: str, alias: str) -> str:
         """Point `alias` at the artifact `ref` resolves to (atomically replacing an old target)."""
-        if not ALIAS.match(alias) or (HEX.match(alias) and len(alias) >= MIN_PREFIX):
-            raise UsageError(
-                f"invalid alias {alias!r}: use letters, digits, '._+-' in '/'-separated parts, "
-                "and not a hex string (it would read as an id)"
-            )
+        problem = alias_problem(alias)
+        if problem:
+            raise UsageError(f"invalid alias {alias!r}: {problem}")
         art_id = self.get(ref).id
         with self._lock(exclusive=False):
+            # checked under the lock: gc cannot collect it between this check and the ref landing
+            if not self._manifest_path(art_id).is_file():
+                raise NotFoundError(f"artifact {art_id[:12]} ({ref}) was removed from store {self.root} meanwhile")
+            self._register(art_id)
             # refs live in '<alias>.ref' files, so 'a/b' and 'a/b/c' can coexist
             path = self._ref_path(alias)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fh, tmp = self._temp_file(".ref")
-            with fh:
-                fh.write(art_id.encode("ascii") + b"\n")
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-            _fsync_dir(path.parent)
+            if path.is_dir():
+                raise IntegrityError(f"alias {alias!r}: {path} is a directory; run d2a artifacts verify --repair")
+            with _storage(f"cannot write alias {alias!r}", path):
+                path.parent.mkdir(parents=True, exist_ok=True)
+                fh, tmp = self._temp_file(".ref")
+                with fh:
+                    fh.write(art_id.encode("ascii") + b"\n")
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.replace(tmp, path)
+                _fsync_dir(path.parent)
         return art_id
 
     def untag(self, alias: str) -> None:
         path = self._ref_path(alias)
         if not path.is_file():
             raise NotFoundError(f"no alias {alias!r} in store {self.root}")
-        path.unlink()
+        with self._lock(exclusive=False), _storage(f"cannot remove alias {alias!r}", path):
+            path.unlink()
 
     # ----------------------------------------------------------------------------- upkeep
-    def verify(self, refs: Iterable[str] | None = None) -> list[VerifyProblem]:
-        """Re-hash manifests and blobs; report every corrupted or incomplete artifact."""
-        ids = [self.resolve(r) for r in refs] if refs is not None else self._all_ids()
+    def _quarantine(self, path: Path, stamp: str) -> str:
+        """Move an unusable file out of the store's namespaces, keeping it for inspection."""
+        dest = self.root / "quarantine" / stamp / path.relative_to(self.root)
+        with _storage("cannot quarantine", path):
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, dest)
+        return str(dest)
+
+    def verify(self, refs: Iterable[str] | None = None, repair: bool = False) -> list[VerifyProblem]:
+        """Re-hash manifests and blobs; report every corrupted or incomplete artifact, alias and
+        run hold. `repair=True` moves what cannot be used (unreadable manifests and alias files,
+        corrupted blobs, aliases to missing artifacts) into `quarantine/`, so every command works
+        again and a rebuild writes fresh copies."""
         problems: list[VerifyProblem] = []
-        checked_blobs: dict[str, str | None] = {}
-        for art_id in ids:
-            path = self._manifest_path(art_id)
-            try:
-                manifest = json.loads(path.read_bytes())
-                if manifest.get("id") != art_id or artifact_id(manifest) != art_id:
-                    problems.append(VerifyProblem(art_id, "manifest does not match its id (modified)"))
+        if refs is not None:
+            ids = []
+            for ref in refs:
+                try:
+                    ids.append(self.resolve(ref))
+                except IntegrityError as exc:
+                    problems.append(VerifyProblem(None, str(exc), alias=ref))
+        else:
+            ids = self._all_ids()
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f"-{os.getpid()}"
+        lock = self._lock(exclusive=True) if repair else contextlib.nullcontext()
+        with lock:
+            checked_blobs: dict[str, str | None] = {}
+            for art_id in ids:
+                path = self._manifest_path(art_id)
+                try:
+                    manifest = self._parse_manifest(path.read_bytes(), art_id)
+                except (OSError, _BadFile) as exc:
+                    what = f"manifest unreadable ({_os_reason(exc)})" if isinstance(exc, OSError) else str(exc)
+                    problem = VerifyProblem(art_id, what, path=str(path))
+                    if repair and path.exists():
+                        problem.repaired = f"moved to {self._quarantine(path, stamp)}"
+                    problems.append(problem)
                     continue
-            except (OSError, ValueError, KeyError, TypeError) as exc:
-                problems.append(VerifyProblem(art_id, f"manifest unreadable: {exc}"))
-                continue
-            for name, info in sorted(manifest["files"].items()):
-                digest = info["sha256"]
-                if digest not in checked_blobs:
+                for name, info in sorted(manifest["files"].items()):
+                    digest = info["sha256"]
                     blob = self._blob_path(digest)
-                    if not blob.is_file():
-                        checked_blobs[digest] = "missing"
-                    else:
-                        actual, size = sha256_file(blob)
-                        checked_blobs[digest] = None if actual == digest and size == info["size"] else "corrupted"
-                if checked_blobs[digest]:
-                    problems.append(VerifyProblem(art_id, f"file {name!r}: blob {digest[:12]} {checked_blobs[digest]}"))
-            for input_id in manifest["inputs"]:
-                if not self._manifest_path(input_id).is_file():
-                    problems.append(VerifyProblem(art_id, f"input {input_id[:12]} is missing"))
-        if refs is None:
-            for alias, target in self.refs().items():
-                if not self._manifest_path(target).is_file():
-                    problems.append(VerifyProblem(None, f"alias {alias!r} points to missing artifact {target[:12]}"))
+                    if digest not in checked_blobs:
+                        if not blob.is_file():
+                            checked_blobs[digest] = "missing"
+                        else:
+                            try:
+                                actual, size = sha256_file(blob)
+                                ok = actual == digest and size == info["size"]
+                            except OSError:
+                                ok = False
+                            checked_blobs[digest] = None if ok else "corrupted"
+                            if not ok and repair:
+                                self._quarantine(blob, stamp)
+                    if checked_blobs[digest]:
+                        problem = VerifyProblem(art_id, f"file {name!r}: blob {digest[:12]} {checked_blobs[digest]}",
+                                                path=str(blob))
+                        if repair and checked_blobs[digest] == "corrupted":
+                            problem.repaired = "blob quarantined; rebuild the artifact to restore it"
+                        problems.append(problem)
+                for input_id in manifest["inputs"]:
+                    if not self._manifest_path(input_id).is_file():
+                        problems.append(VerifyProblem(art_id, f"input {input_id[:12]} is missing; rebuild it"))
+            if refs is None:
+                good, bad = self._scan_refs()
+                for alias, target in good.items():
+                    if not self._manifest_path(target).is_file():
+                        bad.append(VerifyProblem(None, f"alias {alias!r} points to missing artifact {target[:12]}",
+                                                 alias=alias, path=str(self._ref_path(alias))))
+                holds, bad_holds = self.run_holds()
+                for key, held in holds.items():
+                    for art_id in held:
+                        if not self._manifest_path(art_id).is_file():
+                            problems.append(VerifyProblem(art_id, f"run {key[:12]} holds missing artifact {art_id[:12]}",
+                                                          path=str(self._runs / key / HOLDS_FILE)))
+                for problem in bad + bad_holds:
+                    if repair:
+                        problem.repaired = f"moved to {self._quarantine(Path(problem.path), stamp)}"
+                    problems.append(problem)
         return problems
 
+    def _live_leases(self, remove_stale: bool) -> tuple[dict[str, list[str]], list[str]]:
+        """Ids held by live leases (by lease file), and the stale lease files (removed if asked)."""
+        live: dict[str, list[str]] = {}
+        stale: list[str] = []
+        if not self._leases.is_dir():
+            return live, stale
+        own = self._lease.path if self._lease is not None else None
+        for path in sorted(self._leases.glob("*.json")):
+            if path == own:
+                live[path.name] = list(self._lease.ids)
+                continue
+            try:
+                fd = os.open(path, os.O_RDONLY)
+            except OSError:
+                continue
+            try:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:  # its process is alive: everything it lists is a root
+                    data = json.loads(os.pread(fd, 1 << 24, 0) or b"{}")
+                    live[path.name] = [i for i in data.get("artifacts", []) if isinstance(i, str)]
+                else:
+                    stale.append(path.name)
+                    if remove_stale:
+                        path.unlink(missing_ok=True)
+            except (ValueError, AttributeError):
+                # a live lease mid-rewrite cannot be: rewrites happen under the store lock we hold
+                raise IntegrityError(f"lease {path} of a live process is unreadable") from None
+            finally:
+                os.close(fd)
+        return live, stale
+
     def gc(self, dry_run: bool = False) -> GcReport:
-        """Remove artifacts and blobs that no alias reaches (directly or as an input), and temp files."""
+        """Remove artifacts and blobs that no root reaches (directly or as an input), and temp files.
+
+        Roots: aliases, live leases, run holds. If an alias file, a run holds file or a reachable
+        manifest cannot be read, gc removes nothing and names it (IntegrityError): it cannot know
+        what that root protects. `verify --repair` quarantines such files.
+        """
         report = GcReport(dry_run=dry_run)
+        self._check_root()
         if not self.root.is_dir():
             return report
-        with self._lock(exclusive=True):
+        with self._lock(exclusive=True, write=not dry_run):
+            refs, bad_refs = self._scan_refs()
+            holds, bad_holds = self.run_holds()
+            leases, stale = self._live_leases(remove_stale=not dry_run)
+            report.stale_leases = stale
+            blockers = [p.what if p.alias else f"{p.path}: {p.what}" for p in bad_refs + bad_holds]
+            roots = list(refs.values())
+            for name, ids in leases.items():
+                report.held[f"lease {name}"] = ids
+                roots.extend(ids)
+            for key, ids in holds.items():
+                report.held[f"run {key}"] = ids
+                roots.extend(ids)
             live: set[str] = set()
-            stack = [t for t in self.refs().values() if self._manifest_path(t).is_file()]
+            manifests: dict[str, dict[str, Any]] = {}
+            stack = [t for t in roots if self._manifest_path(t).is_file()]
             while stack:
                 art_id = stack.pop()
                 if art_id in live:
                     continue
                 live.add(art_id)
-                stack.extend(i for i in self.get(art_id).inputs if self._manifest_path(i).is_file())
-            live_blobs = {f["sha256"] for i in live for f in self.get(i).files.values()}
+                try:
+                    manifests[art_id] = self._parse_manifest(self._manifest_path(art_id).read_bytes(), art_id)
+                except (OSError, _BadFile) as exc:
+                    blockers.append(f"artifact {art_id}: {exc}")
+                    continue
+                stack.extend(i for i in manifests[art_id]["inputs"] if self._manifest_path(i).is_file())
+            if blockers:
+                raise IntegrityError(
+                    "gc removed nothing: it cannot tell what these protect:\n  " + "\n  ".join(blockers)
+                    + "\nrun d2a artifacts verify --repair to quarantine them, then gc again")
+            live_blobs = {f["sha256"] for m in manifests.values() for f in m["files"].values()}
             for art_id in self._all_ids():
                 if art_id not in live:
                     report.artifacts.append(art_id)
@@ -431,19 +932,20 @@ class Store:
                     report.blobs.append(blob.name)
                     report.bytes_freed += blob.stat().st_size
             # with the exclusive lock held no writer is alive, so every temp file is an orphan
-            temps = sorted(self._tmp.iterdir())
+            temps = sorted(self._tmp.iterdir()) if self._tmp.is_dir() else []
             report.temp_files = [t.name for t in temps]
             report.bytes_freed += sum(t.stat().st_size for t in temps)
             if not dry_run:
-                for art_id in report.artifacts:
-                    self._manifest_path(art_id).unlink()
-                for digest in report.blobs:
-                    self._blob_path(digest).unlink()
-                for tmp in temps:
-                    if tmp.is_dir():
-                        shutil.rmtree(tmp)
-                    else:
-                        tmp.unlink()
+                with _storage("gc cannot remove files"):
+                    for art_id in report.artifacts:
+                        self._manifest_path(art_id).unlink(missing_ok=True)
+                    for digest in report.blobs:
+                        self._blob_path(digest).unlink(missing_ok=True)
+                    for tmp in temps:
+                        if tmp.is_dir():
+                            shutil.rmtree(tmp)
+                        else:
+                            tmp.unlink(missing_ok=True)
         return report
 
 
@@ -488,7 +990,11 @@ class ArtifactWriter:
                     "labels": self.labels,
                     "provenance": provenance(self.command),
                 }
-                canonical_json(manifest)  # fail early on values JSON cannot hold (NaN, objects)
+                try:
+                    canonical_json(manifest)  # fail early on values JSON cannot hold (NaN, objects)
+                except ValueError as error:
+                    raise UsageError(f"artifact of kind {self.kind!r} cannot be stored: {error} "
+                                     "(a config value or label is NaN or infinite)") from None
                 self.artifact = self.store._commit(manifest, self._blobs)
         finally:
             for tmp in self._blobs.values():
@@ -509,16 +1015,19 @@ class ArtifactWriter:
             raise UsageError("use the writer as a context manager: with store.create(...) as w")
         self._check_name(name)
         fh, tmp = self.store._temp_file()
-        writer = _HashingWriter(fh)
+        writer = _HashingWriter(fh, tmp)
         try:
             yield writer  # type: ignore[misc]
-            fh.flush()
-            os.fsync(fh.fileno())
+            with _storage("cannot write to the store", tmp):
+                fh.flush()
+                os.fsync(fh.fileno())
         except BaseException:
-            fh.close()
+            with contextlib.suppress(OSError):
+                fh.close()
             tmp.unlink(missing_ok=True)
             raise
-        fh.close()
+        with _storage("cannot write to the store", tmp):
+            fh.close()
         digest = writer.hexdigest()
         if digest in self._blobs:
             tmp.unlink()
