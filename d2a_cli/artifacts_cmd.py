@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 from rich.tree import Tree
 
-from d2a_cli.common import RunContext, out_console, report_error, with_common_options
+from d2a_cli.common import RunContext, err_console, out_console, report_error, with_common_options
 from d2a_core.errors import IntegrityError
 
 app = typer.Typer(help="Inspect and maintain the artifact store.", no_args_is_help=True)
@@ -33,6 +33,8 @@ def ls(
     """List stored artifacts, oldest first."""
     store = run.store()
     refs = store.refs()
+    unreadable: list[str] = []
+    arts = store.list(kind, unreadable=unreadable)
     rows = [
         {
             "id": art.id,
@@ -42,8 +44,11 @@ def ls(
             "aliases": [a for a, t in refs.items() if t == art.id],
             "labels": art.labels,
         }
-        for art in store.list(kind)
+        for art in arts
     ]
+    if unreadable:  # one damaged manifest must not hide the rest of the store
+        err_console.print(f"[yellow]warning:[/] {len(unreadable)} manifest(s) cannot be read and are not listed: "
+                          f"{', '.join(i[:12] for i in unreadable)}; see d2a artifacts verify", highlight=False)
 
     def render(result: dict[str, Any]) -> None:
         table = Table(title=f"artifacts in {store.root}", title_justify="left")
@@ -54,7 +59,7 @@ def ls(
                           ", ".join(row["aliases"]))
         out_console.print(table)
 
-    run.emit({"store": str(store.root), "artifacts": rows}, render)
+    run.emit({"store": str(store.root), "artifacts": rows, "unreadable": unreadable}, render)
 
 
 def _tree(node: dict[str, Any], tree: Tree) -> None:
@@ -111,24 +116,35 @@ def show(
 @with_common_options
 def verify(
     refs: Annotated[Optional[list[str]], typer.Argument(help="Artifacts to check (default: all).")] = None,
+    repair: Annotated[bool, typer.Option(
+        "--repair", help="Move what cannot be used (unreadable manifests and alias files, corrupted blobs, "
+                         "aliases to missing artifacts) into quarantine/ so every command works again; "
+                         "rebuilding an artifact then restores it.")] = False,
     *,
     run: RunContext,
 ) -> None:
-    """Re-hash every blob and manifest; exit 3 naming each corrupted artifact."""
+    """Re-hash every blob and manifest; exit 3 naming each corrupted artifact and alias."""
     store = run.store()
-    problems = store.verify(refs or None)
-    checked = len(refs) if refs else len(store.list())
-    result = {"checked": checked, "ok": not problems, "problems": [p.as_dict() for p in problems]}
+    checked = len(refs) if refs else store.count()
+    problems = store.verify(refs or None, repair=repair)
+    unrepaired = [p for p in problems if not p.repaired]
+    result = {"checked": checked, "ok": not problems, "repaired": sum(1 for p in problems if p.repaired),
+              "problems": [p.as_dict() for p in problems]}
 
     def render(result: dict[str, Any]) -> None:
         if result["ok"]:
             out_console.print(f"[green]ok[/]: {checked} artifacts verified")
+        for p in problems:
+            if p.repaired:
+                out_console.print(f"repaired {p.alias or p.artifact or p.path}: {p.what}: {p.repaired}",
+                                  highlight=False)
 
     run.emit(result, render)
-    if problems:
+    if unrepaired or (problems and not repair):
         # the JSON result above already lists the problems; stderr gets the human version
-        lines = [f"{p.artifact or '-'}: {p.what}" for p in problems]
-        report_error(f"{len(problems)} problem(s) in store {store.root}:\n  " + "\n  ".join(lines),
+        lines = [f"{p.artifact or p.alias or '-'}: {p.what}" for p in unrepaired]
+        report_error(f"{len(unrepaired)} problem(s) in store {store.root}:\n  " + "\n  ".join(lines)
+                     + ("" if repair else "\n(d2a artifacts verify --repair quarantines what cannot be read)"),
                      IntegrityError.exit_code, "IntegrityError", json_too=False)
         raise typer.Exit(IntegrityError.exit_code)
 
@@ -140,13 +156,19 @@ def gc(
     *,
     run: RunContext,
 ) -> None:
-    """Remove artifacts no alias reaches (directly or as an input), their blobs and temp files."""
+    """Remove artifacts nothing reaches (directly or as an input), their blobs and temp files.
+
+    Kept: what an alias, a running command (its lease) or a run's saved state (runs/KEY/holds.json)
+    reaches. If one of those cannot be read, gc removes nothing and exits 3 naming it.
+    """
     report = run.store().gc(dry_run=dry_run)
 
     def render(result: dict[str, Any]) -> None:
         verb = "would remove" if dry_run else "removed"
         out_console.print(f"{verb} {len(result['artifacts'])} artifacts, {result['blobs']} blobs, "
                           f"{result['temp_files']} temp files ({_human_size(result['bytes_freed'])})")
+        for root, ids in result["held"].items():
+            out_console.print(f"kept for {root}: {len(ids)} artifact(s)", highlight=False)
 
     run.emit(report.as_dict(), render)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import inspect
 import json
+import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -44,12 +45,24 @@ class RunContext:
     def emit(self, result: Any, render: Callable[[Any], None] | None = None) -> None:
         """Print a command's result: JSON on stdout with --json, else a human rendering."""
         if self.json:
-            sys.stdout.write(json.dumps(result, indent=2, sort_keys=False, default=str) + "\n")
+            text = json.dumps(_finite(result), indent=2, sort_keys=False, default=str, allow_nan=False)
+            sys.stdout.write(text + "\n")
             sys.stdout.flush()
         elif render is not None:
             render(result)
         else:
             out_console.print_json(json.dumps(result, default=str))
+
+
+def _finite(value: Any) -> Any:
+    """JSON has no NaN or infinity: a non-finite number (a metric of no episodes) becomes null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
 
 
 # One instance per process: the CLI runs one command per process, and the error handler in

@@ -5,6 +5,7 @@ Exit codes: 0 ok, 1 runtime failure, 2 usage or config error, 3 integrity failur
 
 from __future__ import annotations
 
+import os
 import sys
 import traceback
 from typing import Optional
@@ -76,9 +77,19 @@ def main(argv: list[str] | None = None) -> None:
     except D2AError as exc:
         report_error(str(exc), exc.exit_code, type(exc).__name__)
         sys.exit(exc.exit_code)
-    except Exception as exc:  # an unexpected failure is a runtime error (1), with its traceback
-        traceback.print_exc(file=sys.stderr)
-        report_error(f"{type(exc).__name__}: {exc}", 1, type(exc).__name__)
+    except OSError as exc:  # the environment refused something (disk full, read-only, permissions)
+        where = f"{exc.filename}: " if exc.filename else ""
+        report_error(f"{where}{exc.strerror or exc}", 1, type(exc).__name__)
+        sys.exit(1)
+    except MemoryError:
+        report_error("out of memory (a config value may ask for far too much; see d2a config show)", 1,
+                     "MemoryError")
+        sys.exit(1)
+    except Exception as exc:  # a bug: a runtime error (1); the traceback only when asked for
+        if os.environ.get("D2A_DEBUG"):
+            traceback.print_exc(file=sys.stderr)
+        report_error(f"internal error {type(exc).__name__}: {exc} (please report it; D2A_DEBUG=1 shows the "
+                     "traceback)", 1, type(exc).__name__)
         sys.exit(1)
     # standalone_mode=False returns the exit code of a typer.Exit (e.g. after --help) or None
     sys.exit(code if isinstance(code, int) else 0)

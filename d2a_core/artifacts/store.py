@@ -488,6 +488,10 @@ class Store:
             return []
         return sorted(p.stem for p in self._manifests.glob("??/*.json") if FULL_ID.match(p.stem))
 
+    def count(self) -> int:
+        """How many manifests the store holds (readable or not)."""
+        return len(self._all_ids())
+
     def _read_ref_file(self, path: Path) -> str:
         try:
             text = path.read_bytes().decode("ascii")

@@ -8,10 +8,16 @@ Artifacts written (aliases in brackets):
   of the scripted driver at pace `pace_i` on its own line, labelled with pace and finish time.
 
 Everything is deterministic in (source, config, seed), so running it twice gives the same ids.
+
+A track and its replays appear together or not at all: the aliases are written only after every
+replay is stored (a lease keeps the unaliased artifacts from a concurrent gc meanwhile), and
+consumers (`opponents_of`) use only a complete set of replays, `opponents.count` of them, as
+recorded in the replays' own config.
 """
 
 from __future__ import annotations
 
+import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,8 +26,9 @@ from typing import Any, Callable
 import numpy as np
 
 from d2a_core.artifacts import Store
+from d2a_core.artifacts.store import alias_problem
 from d2a_core.config import ResolvedConfig
-from d2a_core.errors import D2AError
+from d2a_core.errors import D2AError, UsageError
 from d2a_core.sim.episode_log import CarPose, EpisodeRecorder
 from d2a_core.sim.opponents import Lap, drive_lap, line_profile
 from d2a_core.sim.recording import scene_of
@@ -82,8 +89,11 @@ def make_track(
     src: TrackSource = load_track_source(source, start_m=start_m, length_m=length_m, name=name,
                                          config=cfg.tracks)
     track = src.track
+    problem = alias_problem(f"track/{track.name}")
+    if problem:  # checked before anything is written: the alias is the last thing make-track writes
+        raise UsageError(f"track name {track.name!r} cannot name an alias ({problem}); give another with --name")
     track_config = resolved.section(*TRACK_SECTIONS)
-    with tempfile.TemporaryDirectory(prefix="d2a-make-track-") as tmp:
+    with store.lease(), tempfile.TemporaryDirectory(prefix="d2a-make-track-") as tmp:
         tmp = Path(tmp)
         npz = tmp / "track.npz"
         track.save(npz)
@@ -91,7 +101,6 @@ def make_track(
                   "elevation_range_m": round(track.elevation_range, 3), "source": src.description}
         track_art = store.put("track", {"track.npz": npz, f"source{src.suffix}": src.raw},
                               config=track_config, seed=None, labels=labels)
-        store.tag(track_art.id, f"track/{track.name}")
 
         opp_cfg = cfg.opponents
         rng = np.random.default_rng(seed)
@@ -128,8 +137,12 @@ def make_track(
                              "max_speed_m_s": round(float(np.max(lap.arrays["speed"])), 3)}
             art = store.put("replay", {"replay.mcap": log_path}, inputs=[track_art.id],
                             config=resolved.section(*REPLAY_SECTIONS), seed=seed, labels=replay_labels)
-            store.tag(art.id, f"track/{track.name}/opponents/{index}")
             results.append(OpponentResult(art.id, index, pace, float(lap.finish_time_s)))
+        # all replays are stored: now name them, the track last (a kill before this leaves only
+        # unaliased artifacts, which the next run reuses and gc collects)
+        for result in results:
+            store.tag(result.id, f"track/{track.name}/opponents/{result.index}")
+        store.tag(track_art.id, f"track/{track.name}")
         if progress:
             progress("done", len(pace_list), len(pace_list))
     return {
@@ -145,12 +158,31 @@ def make_track(
 
 
 def opponents_of(store: Store, track_ref: str) -> list[str]:
-    """Ids of the replays recorded on a track, in index order."""
+    """Ids of the newest complete set of replays recorded on a track, in index order.
+
+    A set is the replays of one make-track run (same config and seed); it is complete when it
+    holds every index below the `opponents.count` of that config. An interrupted run leaves an
+    incomplete set, which is never used.
+    """
     track_id = store.resolve(track_ref)
-    replays = [a for a in store.list("replay") if a.inputs == [track_id]]
-    if not replays:
-        raise D2AError(f"track {track_ref} has no opponent replays in store {store.root}; run d2a make-track")
-    latest: dict[int, Any] = {}
-    for art in replays:  # the same index recorded under several configs: keep the newest
-        latest[art.labels["index"]] = art
-    return [latest[i].id for i in sorted(latest)]
+    sets: dict[str, dict[int, Any]] = {}
+    for art in store.list("replay"):
+        if art.inputs == [track_id]:
+            key = json.dumps([art.config, art.seed], sort_keys=True)
+            sets.setdefault(key, {})[art.labels.get("index")] = art
+    complete, partial = [], []
+    for members in sets.values():
+        first = next(iter(members.values()))
+        count = (first.config or {}).get("opponents", {}).get("count") if isinstance(first.config, dict) else None
+        if isinstance(count, int) and count > 0 and set(members) == set(range(count)):
+            complete.append(members)
+        else:
+            partial.append((len(members), count))
+    if not complete:
+        if partial:
+            found, expected = max(partial, key=lambda p: p[0])
+            raise UsageError(f"track {track_ref} has no complete set of opponent replays in store {store.root} "
+                             f"(found {found} of {expected}: make-track was interrupted); run d2a make-track again")
+        raise UsageError(f"track {track_ref} has no opponent replays in store {store.root}; run d2a make-track")
+    newest = max(complete, key=lambda m: max((a.created, a.id) for a in m.values()))
+    return [newest[i].id for i in sorted(newest)]
