@@ -21,7 +21,8 @@ CSV_SUFFIXES = (".csv",)
 TRACK_SUFFIXES = (".npz",)
 # The specs shipped with the repository (`tracks/` beside the package, for a source checkout).
 SHIPPED_TRACKS_DIR = Path(__file__).resolve().parents[2] / "tracks"
-_NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]+$")
+# a track name becomes part of the alias track/<name>: no leading '.', '-' (reads as an option) or '..'
+_NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 @dataclass
@@ -95,7 +96,8 @@ def load_track_source(
     if suffix not in CSV_SUFFIXES and (start_m is not None or length_m is not None):
         raise UsageError(f"{path}: --start and --length apply only to centreline CSV files")
     if name is not None and not _NAME_PATTERN.match(name):
-        raise UsageError(f"track name {name!r} may only contain letters, digits, '_', '.' and '-'")
+        raise UsageError(f"--name {name!r}: a track name starts with a letter or digit and may only contain "
+                         "letters, digits, '_', '.' and '-'")
     try:
         raw = path.read_bytes()
     except OSError as error:
