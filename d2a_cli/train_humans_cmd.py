@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from typing import Annotated, Any
 
 import typer
@@ -33,25 +34,34 @@ def train_humans(
     resolved = config_mod.load(preset, config_file, overrides or [])
     store = run.store()
     populations = []
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console) as bar:
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console)
+    # The lease keeps what this run creates or loads (track, replays, checkpoints not yet aliased)
+    # safe from a concurrent `d2a artifacts gc` for as long as this process lives.
+    with store.lease(), contextlib.ExitStack() as cleanup:
         for name in intent:
-            task = bar.add_task(f"{name}", total=resolved.config.humans.env_steps, stats="")
+            # the bar appears with the first progress report, so that an argument error found while
+            # loading the track (no such track, an ambiguous prefix) is printed alone
+            state: dict[str, Any] = {"task": None, "next": 0.0}
 
-            marks = {"next": 0.0}
-
-            def progress(p: dict[str, Any], task=task, marks=marks) -> None:
+            def progress(p: dict[str, Any], name=name, state=state) -> None:
+                if not bar.live.is_started:
+                    bar.start()
+                    cleanup.callback(bar.stop)
+                if state["task"] is None:
+                    state["task"] = bar.add_task(f"{name}", total=resolved.config.humans.env_steps, stats="")
                 ret = p["recent_return"]
                 stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  return {ret:.1f}" if ret is not None else "")
-                bar.update(task, completed=p["env_steps"], stats=stats)
+                bar.update(state["task"], completed=p["env_steps"], stats=stats)
                 done = p["env_steps"] / p["total"]
-                if not err_console.is_terminal and done >= marks["next"]:  # logs, not a live bar
+                if not err_console.is_terminal and done >= state["next"]:  # logs, not a live bar
                     err_console.print(f"{p['intent']}: {p['env_steps']}/{p['total']} env steps, {stats}")
-                    marks["next"] += 0.05
+                    state["next"] += 0.05
 
             result = train_population(store, track, name, resolved, run.seed, device=run.device, progress=progress)
-            bar.update(task, completed=resolved.config.humans.env_steps,
-                       stats="(stored result)" if result["cached"] else "done")
+            if state["task"] is not None:
+                bar.update(state["task"], completed=resolved.config.humans.env_steps,
+                           stats="(stored result)" if result["cached"] else "done")
             populations.append(result)
 
     def render(r: dict[str, Any]) -> None:
