@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,8 +105,13 @@ def _load_mapping(path: Path, label: str) -> dict[str, Any]:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a directory") from None
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{label}: not a UTF-8 text file (byte {exc.start}: {exc.reason}); "
+                          "--config takes a YAML file") from None
     data = parse_yaml(text, label)
     if data is None:
         return {}
@@ -168,6 +174,21 @@ def _describe_errors(exc: ValidationError, schema: type[BaseModel], sources: dic
     return "invalid configuration:\n  " + "\n  ".join(lines)
 
 
+def _reject_non_finite(tree: Any, sources: dict[str, str], prefix: str = "") -> None:
+    """NaN and infinity are valid YAML floats but no valid setting: a NaN reward or an infinite
+    learning rate only shows up later as a crash or a NaN loss, and JSON cannot record them."""
+    items = tree.items() if isinstance(tree, dict) else enumerate(tree) if isinstance(tree, list) else ()
+    for key, value in items:
+        path = f"{prefix}{key}"
+        if isinstance(value, float) and not math.isfinite(value):
+            source_key = path
+            while source_key not in sources and "." in source_key:
+                source_key = source_key.rsplit(".", 1)[0]
+            raise ConfigError(f"invalid value for '{path}': {value} from {sources.get(source_key, 'defaults')}: "
+                              "must be a finite number")
+        _reject_non_finite(value, sources, path + ".")
+
+
 def resolve_config(
     schema: type[BaseModel],
     preset: str = "quick",
@@ -189,6 +210,7 @@ def resolve_config(
     for text in overrides:
         key, value = parse_override(text)
         _merge(merged, _nest(key, value), sources, f"--set {text}")
+    _reject_non_finite(merged, sources)
     try:
         config = schema.model_validate(merged)
     except ValidationError as exc:
