@@ -3,12 +3,45 @@
 Notation: `s` distance along the centreline, `e` lateral offset (positive = left);
 `ds_t = s_ego - s_opp`, `de_t = e_ego - e_opp`. All constants come from `RewardConfig`.
 
-- task:  (r_collision + r_forfeit * D) * I(collision) + (r_bounds + r_forfeit * D) * I(off track)
-         + r_finish * I(finish), D = how far the opponent still drives until the time limit
+The paper's formulas (its appendix), and what this module computes:
+
+- task:  r_collision * I(collision) + r_bounds * I(off track) + r_finish * I(finish)
+         (the paper gives only the signs; here -100, -100, +100, and nothing else: r^task is
+         bounded, and the assistant receives it too)
 - pass:  c_pass * (ds_t - ds_{t-1}) * I(|ds_t| <= W_pass or |ds_{t-1}| <= W_pass)
+         + c_pass * F * I(crash)                                            [F: the forfeit, below]
 - stay:  (s_t - s_{t-1}) + c_stay * (ds_t - ds_{t-1}) * I(|ds_t| <= W_stay or |ds_{t-1}| <= W_stay)
 - left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin) * I(opponent racing)
-- right: c_side * (ds_t - ds_{t-1}) * I(pass window) - (de_t + c_margin) * I(opponent racing)
+         + c_side * F * I(crash)
+- right: c_side * (ds_t - ds_{t-1}) * I(pass window) + (-de_t + c_margin) * I(opponent racing)
+         + c_side * F * I(crash)
+         (the paper prints `- (de_t + 0.3)`; see `right_mirrors_left`)
+
+"crash" is a collision or leaving the track: both end the episode.
+
+**The forfeit F.** With the paper's constant crash penalty alone, a pass driver that is behind
+ends its stream of negative passing reward by crashing (early in training every episode ends
+early anyway, and the earliest end loses the least). A crash must cost at least what stopping
+would. A car stopped at the crash point would go on paying the passing term while the opponent
+drives on, for as long as the gap stays inside the +-W_pass window (or until the time limit):
+
+    F = -| [ds_t - D, ds_t]  intersect  [-W_pass, W_pass] |      D = distance the opponent still
+                                                                      drives until the time limit
+
+so a crash costs exactly |r_collision| (or |r_bounds|) more than stopping, whatever replay was
+drawn, and never more than c * 2 W_pass. The forfeit belongs to the intent term, at the intent's
+own rate: 10 per metre for pass, 1 for left/right. Stay gets none: its windowed term pays a
+stopped car for dropping back, so stopping is never a way out of a negative stream for it, and
+the crash penalty alone already makes any crash worse than stopping. (An earlier form charged
+r^task the full distance D at the pass rate for every intent: with the opponent moved on at its
+last speed to the time limit, -20,000 on the straightaway and -42,700 on the hairpin against
++321 for a flat-out pass, shrinking every other reward ~100-fold under DreamerV3's percentile
+return normalisation. `forfeit: false` restores the paper's literal sparse penalties.)
+
+**The side term.** The paper pays left `de_t + 0.3` and right `-(de_t + 0.3)`: left earns 0.3 per
+step for free, right pays 0.3 per step (so for right, ending the episode early pays). The two
+intents are the same driver with the side flipped, so right here is the mirror of left,
+`-de_t + 0.3`; `right_mirrors_left: false` restores the literal print.
 """
 
 from __future__ import annotations
@@ -26,18 +59,12 @@ INTENTS = ("pass", "stay", "left", "right")
 class RewardConfig(Section):
     """Task and intent reward constants (paper section 3 and appendix 'Human Objectives')."""
 
-    # The paper gives only the signs of the task terms. With a constant penalty alone, a pass
-    # driver that is behind ends the stream of negative passing reward by crashing: before it
-    # can drive, every episode ends early anyway, and the earliest end loses the least. A crashed
-    # car stays where it is while the opponent drives on, so the crash also pays, at the pass
-    # term's rate, the distance the opponent still covers until the time limit (not capped by the
-    # pass window, so no crash beats stopping). A pass episode that ends in a crash at s then
-    # returns 10 * s + const: every metre driven counts, and any finish beats any crash.
     collision: float = Field(-100.0, le=0, description="r^collision, paid once when a collision ends the episode")
     bounds: float = Field(-100.0, le=0, description="r^bounds, paid once when the car leaves the track too far")
-    forfeit_per_m: float = Field(
-        -10.0, le=0,
-        description="added to r^collision / r^bounds per metre the opponent still drives until the time limit",
+    forfeit: bool = Field(
+        True,
+        description="a crash also pays the intent's passing rate on what a stopped car would still lose "
+                    "inside the pass window (see the module docstring); false: the paper's literal penalties",
     )
     finish: float = Field(100.0, ge=0, description="r^finish, paid once when the finish line is reached")
     c_pass: float = Field(10.0, description="scale of the pass term on ds_t - ds_{t-1}")
@@ -53,6 +80,9 @@ class RewardConfig(Section):
     side_only_while_racing: bool = Field(
         True, description="pay the left/right side term only while the opponent is still racing"
     )
+    right_mirrors_left: bool = Field(
+        True, description="right pays -de + c_margin (the mirror of left); false: the paper's -(de + c_margin)"
+    )
 
 
 @dataclass(frozen=True)
@@ -67,7 +97,7 @@ class StepQuantities:
     collision: bool
     off_track: bool
     finished: bool
-    remaining_m: float = 0.0  # distance the opponent still drives until the time limit
+    remaining_m: float = 0.0  # distance the opponent still drives until the time limit (D)
     opponent_racing: bool = True  # False once the opponent's replay has reached its end
 
 
@@ -84,6 +114,12 @@ class RewardTerms:
     stay: float
     left: float
     right: float
+    forfeit_m: float = 0.0  # F of the module docstring (metres; 0 unless the step crashed)
+
+    @staticmethod
+    def zeros() -> "RewardTerms":
+        """All terms zero (the layout of a step that has no terms yet)."""
+        return RewardTerms(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def intent(self, name: str) -> float:
         return {"pass": self.pass_, "stay": self.stay, "left": self.left, "right": self.right}[name]
@@ -96,7 +132,7 @@ class RewardTerms:
         return {
             "collision": self.collision, "bounds": self.bounds, "finish": self.finish, "task": self.task,
             "progress": self.progress, "pass": self.pass_, "stay": self.stay, "left": self.left,
-            "right": self.right,
+            "right": self.right, "forfeit_m": self.forfeit_m,
         }
 
 
@@ -105,12 +141,20 @@ def _windowed_delta(q: StepQuantities, window: float) -> float:
     return (q.ds - q.ds_prev) if inside else 0.0
 
 
+def forfeit_m(q: StepQuantities, window: float) -> float:
+    """F of the module docstring: minus the metres of gap a car stopped at this point would still
+    lose inside the +-`window` pass window before the time limit (0 unless the step crashed)."""
+    if not (q.collision or q.off_track):
+        return 0.0
+    lost = min(q.ds, window) - max(q.ds - max(q.remaining_m, 0.0), -window)
+    return -max(lost, 0.0)
+
+
 def task_reward(q: StepQuantities, cfg: RewardConfig) -> tuple[float, float, float]:
     """(r_collision, r_bounds, r_finish) for this step."""
-    forfeit = cfg.forfeit_per_m * max(q.remaining_m, 0.0)
     return (
-        cfg.collision + forfeit if q.collision else 0.0,
-        cfg.bounds + forfeit if q.off_track else 0.0,
+        cfg.collision if q.collision else 0.0,
+        cfg.bounds if q.off_track else 0.0,
         cfg.finish if q.finished else 0.0,
     )
 
@@ -123,9 +167,15 @@ def intent_reward(intent: str, q: StepQuantities, cfg: RewardConfig) -> float:
 def reward_terms(q: StepQuantities, cfg: RewardConfig) -> RewardTerms:
     collision, bounds, finish = task_reward(q, cfg)
     progress = q.s - q.s_prev
-    passing = _windowed_delta(q, cfg.pass_window_m)
+    forfeit = forfeit_m(q, cfg.pass_window_m) if cfg.forfeit else 0.0
+    passing = _windowed_delta(q, cfg.pass_window_m) + forfeit
     side = cfg.c_side * passing
-    bias = (q.de + cfg.c_margin) if (q.opponent_racing or not cfg.side_only_while_racing) else 0.0
+    racing = q.opponent_racing or not cfg.side_only_while_racing
+    left_bias = (q.de + cfg.c_margin) if racing else 0.0
+    if cfg.right_mirrors_left:
+        right_bias = (-q.de + cfg.c_margin) if racing else 0.0
+    else:
+        right_bias = -(q.de + cfg.c_margin) if racing else 0.0
     return RewardTerms(
         collision=collision,
         bounds=bounds,
@@ -134,6 +184,7 @@ def reward_terms(q: StepQuantities, cfg: RewardConfig) -> RewardTerms:
         progress=progress,
         pass_=cfg.c_pass * passing,
         stay=progress + cfg.c_stay * _windowed_delta(q, cfg.stay_window_m),
-        left=side + bias,
-        right=side - bias,
+        left=side + left_bias,
+        right=side + right_bias,
+        forfeit_m=forfeit,
     )

@@ -6,10 +6,13 @@ contacts, camera) from pybullet (`world`), rewards from `d2a_core.objectives`.
 Observation (a flat float32 `Box`; `observation_names()` lists every entry):
 
 - ego state: x, y, vx, vy, speed, yaw rate, heading (cos, sin), heading relative to the track
-  (cos, sin), front and rear tyre slip angles, steer angle, lateral offset e, distance travelled;
+  (cos, sin), front and rear tyre slip angles, steer angle, lateral offset e, distance travelled,
+  time left until the time limit (s; the limit shapes the return, so the agent must see it);
 - track edges: for each lookahead distance, the left and right edge points in the car frame;
 - opponent: ds = s_ego - s_opp, de = e_ego - e_opp, its speed minus ours, its position in the car
-  frame, its heading relative to ours (cos, sin), and whether it is still racing;
+  frame, its heading relative to ours (cos, sin), and whether it is still racing (once its replay
+  has ended it has left the track: it is shown far ahead, `FAR_AHEAD_M` in the car frame, not
+  at the car's own position);
 - partner action (2 values): the other driver's last action under shared control, zeros when one
   agent drives alone. Never the intent.
 
@@ -20,7 +23,9 @@ Shared control: a wrapper (see `shared_control.SharedControl`) computes the appl
 should see, then `step(applied)`. `info["applied_action"]` and `info["partner_action"]` record both.
 
 Termination: collision with the opponent or a barrier (pybullet contacts), more than
-`off_track_margin_m` beyond a road edge, or the finish line; truncation at the time limit.
+`off_track_margin_m` beyond a road edge, or the finish line; truncation at the time limit. A step
+has at most one outcome, in this order: collision, off track, finish (a car that crosses the line
+while crashing or leaving the road has not finished, and is paid only the crash).
 `info` carries every reward term and the quantities metrics need, so evaluation never re-simulates.
 """
 
@@ -42,6 +47,8 @@ from d2a_core.sim.world import RaceWorld, WorldConfig
 from d2a_core.tracks.track import Track
 
 DEFAULT_LOOKAHEAD_M = (0.0, 5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 130.0)
+# where a finished opponent is shown, straight ahead in the car frame (beyond every lookahead)
+FAR_AHEAD_M = 200.0
 
 
 class EnvConfig(Section):
@@ -63,7 +70,7 @@ class EnvConfig(Section):
 
 
 EGO_FIELDS = ("x", "y", "vx", "vy", "speed", "yaw_rate", "cos_yaw", "sin_yaw", "cos_track_yaw", "sin_track_yaw",
-              "slip_front", "slip_rear", "steer", "e", "distance")
+              "slip_front", "slip_rear", "steer", "e", "distance", "time_left")
 OPPONENT_FIELDS = ("ds", "de", "dspeed", "opp_dx", "opp_dy", "opp_cos_dyaw", "opp_sin_dyaw", "opp_racing")
 PARTNER_FIELDS = ("partner_steer", "partner_accel")
 
@@ -190,10 +197,11 @@ class RaceEnv(gym.Env):
         w_left, w_right = self.track.width_at(self._s)
         margin = self.cfg.off_track_margin_m
         off_track = self._e > w_left + margin or self._e < -(w_right + margin)
-        finished = self._s >= self.track.finish_s
         collision = car_hit or barrier_hit
+        off_track = off_track and not collision
+        finished = self._s >= self.track.finish_s and not (collision or off_track)
         q = StepQuantities(s=self._s, s_prev=s_prev, ds=self._ds, ds_prev=ds_prev, de=self._e - self._opp_e,
-                           collision=collision, off_track=off_track and not collision, finished=finished and not collision,
+                           collision=collision, off_track=off_track, finished=finished,
                            remaining_m=self._opp_s_at_limit - self._opp_s, opponent_racing=self._opp_racing)
         terms = reward_terms(q, self.reward_cfg)
         reward = terms.human(self.intent)
@@ -248,7 +256,8 @@ class RaceEnv(gym.Env):
         cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
         rel = _wrap(yaw - self.track.heading_at(self._s))
         values = [x, y, st.vx, st.vy, st.speed, st.yaw_rate, cos_yaw, sin_yaw, math.cos(rel), math.sin(rel),
-                  st.slip_angle_front, st.slip_angle_rear, st.steer, self._e, self._s - self._s_start]
+                  st.slip_angle_front, st.slip_angle_rear, st.steer, self._e, self._s - self._s_start,
+                  (self._max_steps - self._step) * self.cfg.dt]
         # edge points by linear interpolation between samples, in the car frame
         lx, ly, rx, ry = self._edge_lists
         inv, last = self._inv_spacing, self._n_samples - 2
@@ -275,7 +284,7 @@ class RaceEnv(gym.Env):
             values += (self._ds, self._e - self._opp_e, ospeed - st.speed, cos_yaw * odx + sin_yaw * ody,
                        cos_yaw * ody - sin_yaw * odx, math.cos(dyaw), math.sin(dyaw), 1.0)
         else:
-            values += (self._ds, self._e - self._opp_e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+            values += (self._ds, self._e - self._opp_e, 0.0, FAR_AHEAD_M, 0.0, 1.0, 0.0, 0.0)
         values += self._partner_list
         return np.array(values, dtype=np.float32)
 

@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from d2a_core.objectives.rewards import RewardTerms
 from d2a_core.sim.episode_log import CarPose, EpisodeLogConfig, EpisodeRecorder, StaticScene
 
 
@@ -85,8 +86,7 @@ class RecordEpisodes(gym.Wrapper):
             "intent": info["intent"] or "", "collision": info["collision"], "off_track": info["off_track"],
         }
         if not ego_state["reward_terms"]:  # the first step has no terms yet: same layout, zeros
-            ego_state["reward_terms"] = {k: 0.0 for k in ("collision", "bounds", "finish", "task", "progress",
-                                                           "pass", "stay", "left", "right")}
+            ego_state["reward_terms"] = RewardTerms.zeros().as_dict()
         opp_state = {"s": info["opponent_s"], "e": info["opponent_e"], "racing": info["opponent_racing"]}
         self._recorder.log_step(info["t"], cars, {"ego": ego_state, "opponent": opp_state})
 

@@ -47,9 +47,18 @@ def test_stay_term_is_progress_minus_closing_in_within_50m():
 def test_left_and_right_are_passing_plus_side_bias():
     t = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=1.5), CFG)
     assert t.left == pytest.approx(1.0 + (1.5 + 0.3))
-    assert t.right == pytest.approx(1.0 - (1.5 + 0.3))
+    assert t.right == pytest.approx(1.0 + (-1.5 + 0.3))   # the mirror of left
     t = reward_terms(q(ds=0.0, ds_prev=0.0, de=-2.0), CFG)
-    assert t.left == pytest.approx(-1.7) and t.right == pytest.approx(1.7)
+    assert t.left == pytest.approx(-1.7) and t.right == pytest.approx(2.3)
+
+
+def test_right_is_the_mirror_of_left():
+    """Mirroring the car's side (de -> -de) turns a left reward into the same right reward; the
+    paper's literal print -(de + 0.3) on request."""
+    for de in (-3.0, -0.3, 0.0, 0.7, 4.0):
+        assert reward_terms(q(de=-de), CFG).right == pytest.approx(reward_terms(q(de=de), CFG).left)
+    literal = RewardConfig(right_mirrors_left=False)
+    assert reward_terms(q(ds=0.0, ds_prev=0.0, de=1.5), literal).right == pytest.approx(-1.8)
 
 
 def test_side_term_stops_when_the_opponent_has_finished():
@@ -57,7 +66,7 @@ def test_side_term_stops_when_the_opponent_has_finished():
     keep earning its side bias until the time limit; the paper's literal formula on request."""
     done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), CFG)
     assert done.left == pytest.approx(1.0) and done.right == pytest.approx(1.0)
-    literal = RewardConfig(side_only_while_racing=False)
+    literal = RewardConfig(side_only_while_racing=False, right_mirrors_left=False)
     done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), literal)
     assert done.left == pytest.approx(1.0 + 5.3) and done.right == pytest.approx(1.0 - 5.3)
 
@@ -75,17 +84,55 @@ def test_task_terms_and_human_reward():
     assert reward_terms(q(collision=True), custom).human("pass") == pytest.approx(-50.0 + 3.0)
 
 
-def test_a_crash_forfeits_the_rest_of_the_race():
-    t = reward_terms(q(collision=True, remaining_m=250.0), CFG)
-    assert t.collision == pytest.approx(CFG.collision + CFG.forfeit_per_m * 250.0)
-    t = reward_terms(q(off_track=True, remaining_m=40.0), CFG)
-    assert t.bounds == pytest.approx(CFG.bounds + CFG.forfeit_per_m * 40.0)
-    # a pass episode that ends in a crash returns c_pass * s_ego + const, whatever the opponent
-    # did meanwhile: (pass terms so far) + forfeit, with the opponent at s_limit at the time limit
-    s_limit, start_gap = 900.0, -5.0
-    for s_ego, s_opp in ((30.0, 40.0), (30.0, 120.0), (200.0, 260.0)):
-        passing = CFG.c_pass * ((s_ego - s_opp) - start_gap)
-        total = passing + reward_terms(q(collision=True, remaining_m=s_limit - s_opp), CFG).task
-        assert total == pytest.approx(CFG.collision + CFG.c_pass * (s_ego - s_limit - start_gap))
+def test_task_reward_is_bounded_and_the_same_for_every_intent():
+    """r^task (which the assistant shares) is the paper's sparse terms only: no distance term."""
+    for remaining in (0.0, 50.0, 5_000.0):
+        assert reward_terms(q(collision=True, remaining_m=remaining), CFG).task == CFG.collision
+        assert reward_terms(q(off_track=True, remaining_m=remaining), CFG).task == CFG.bounds
     assert reward_terms(q(finished=True, remaining_m=0.0), CFG).task == CFG.finish
     assert reward_terms(q(remaining_m=100.0), CFG).task == 0.0
+
+
+@pytest.mark.parametrize(
+    "ds, remaining, expected_f",
+    [
+        (0.0, 2_000.0, -800.0),      # level with the opponent: the gap would fall to the window's edge
+        (-50.0, 2_000.0, -750.0),    # behind: less of the window is left to lose
+        (-50.0, 100.0, -100.0),      # the time limit comes first: only what the opponent still drives
+        (30.0, 2_000.0, -830.0),     # ahead: the lead and then the window behind
+        (900.0, 2_000.0, -1_600.0),  # far ahead: the whole window, never more
+        (900.0, 50.0, 0.0),          # far ahead and the limit comes before the gap enters the window
+        (-900.0, 2_000.0, 0.0),      # already out of the window behind: nothing left to lose
+    ],
+)
+def test_crash_forfeit_hand_computed(ds, remaining, expected_f):
+    """F = -|[ds - D, ds] intersect [-800, 800]|, paid at the intent's own passing rate."""
+    t = reward_terms(q(ds=ds, ds_prev=ds, collision=True, remaining_m=remaining), CFG)
+    assert t.forfeit_m == pytest.approx(expected_f)
+    assert t.pass_ == pytest.approx(10.0 * expected_f)
+    assert t.left - (1.5 + 0.3) == pytest.approx(1.0 * expected_f)  # de = 1.5
+    assert t.right - (-1.5 + 0.3) == pytest.approx(1.0 * expected_f)
+    assert t.stay == pytest.approx(2.0)  # stay: progress only, no forfeit
+    off = reward_terms(q(ds=ds, ds_prev=ds, off_track=True, remaining_m=remaining), CFG)
+    assert off.pass_ == pytest.approx(t.pass_) and off.bounds == CFG.bounds
+
+
+def test_a_crash_costs_exactly_the_penalty_more_than_stopping():
+    """Stopping at the crash point and being passed step by step until the time limit pays the
+    pass term on every metre of gap lost inside the window; crashing there pays the same forfeit
+    plus r_collision (up to one step at the window's edge)."""
+    dt_gap = 3.0  # the opponent's metres per step
+    for ds0, remaining in ((0.0, 2_000.0), (-40.0, 300.0), (25.0, 1_000.0), (-790.0, 500.0)):
+        stopped, ds, left = 0.0, ds0, remaining
+        while left > 1e-9:
+            step = min(dt_gap, left)
+            stopped += reward_terms(q(ds=ds - step, ds_prev=ds), CFG).pass_
+            ds, left = ds - step, left - step
+        crashed = reward_terms(q(ds=ds0, ds_prev=ds0, collision=True, remaining_m=remaining), CFG).human("pass")
+        assert crashed - CFG.collision == pytest.approx(stopped, abs=10.0 * dt_gap)
+
+
+def test_the_forfeit_can_be_turned_off():
+    literal = RewardConfig(forfeit=False)
+    t = reward_terms(q(ds=0.0, ds_prev=0.0, collision=True, remaining_m=2_000.0), literal)
+    assert t.forfeit_m == 0.0 and t.pass_ == 0.0 and t.human("pass") == CFG.collision

@@ -13,7 +13,7 @@ import d2a_core.sim  # noqa: F401  (registers d2a/Race-v0)
 from d2a_core.objectives import RewardConfig
 from d2a_core.sim import ENV_ID, make_vector_env
 from d2a_core.sim.episode_log import read_episode
-from d2a_core.sim.race_env import EnvConfig, RaceEnv, observation_names
+from d2a_core.sim.race_env import FAR_AHEAD_M, EnvConfig, RaceEnv, observation_names
 from d2a_core.sim.recording import RecordEpisodes
 from d2a_core.sim.replay import OpponentReplay
 from d2a_core.sim.shared_control import SharedControl, blend
@@ -37,6 +37,14 @@ def parked_opponent(track, s: float, e: float, steps: int = 400) -> OpponentRepl
     n = steps
     return OpponentReplay(t=np.arange(n) * 0.1, x=np.full(n, x), y=np.full(n, y), z=np.full(n, z),
                           yaw=np.full(n, yaw), speed=np.zeros(n), s=np.full(n, s), e=np.full(n, e))
+
+
+def expected_forfeit(info, window: float = RewardConfig().pass_window_m) -> float:
+    """F by hand: minus the gap a car stopped here would still lose inside the pass window."""
+    if not (info["collision"] or info["off_track"]):
+        return 0.0
+    ds, remaining = info["ds"], info["opponent_s_at_limit"] - info["opponent_s"]
+    return -max(0.0, min(ds, window) - max(ds - remaining, -window))
 
 
 def run(env, policy, seed=0, options=None, max_steps=2000):
@@ -97,8 +105,10 @@ def test_collision_with_opponent_terminates(straight):
     last = infos[-1]
     assert terminated and last["collision_car"] and not last["collision_barrier"]
     cfg = RewardConfig()
-    remaining = last["opponent_s_at_limit"] - last["opponent_s"]
-    assert last["reward_terms"]["collision"] == pytest.approx(cfg.collision + cfg.forfeit_per_m * remaining)
+    assert last["reward_terms"]["collision"] == cfg.collision and last["reward_terms"]["task"] == cfg.collision
+    # the opponent stands still: a stopped ego would lose nothing more, so the crash costs r_collision
+    assert expected_forfeit(last) == 0.0 and last["reward_terms"]["forfeit_m"] == 0.0
+    assert rewards[-1] == pytest.approx(cfg.collision + cfg.c_pass * (last["ds"] - infos[-2]["ds"]))
     assert last["s"] == pytest.approx(grid.s + 30.0 - env.cfg.car_length_m, abs=3.5)
 
 
@@ -119,9 +129,47 @@ def test_off_track_terminates(straight):
     assert terminated and last["off_track"] and not last["collision"]
     assert last["e"] > straight.width_at(last["s"])[0] + env.cfg.off_track_margin_m
     cfg = RewardConfig()
-    bounds = cfg.bounds + cfg.forfeit_per_m * (last["opponent_s_at_limit"] - last["opponent_s"])
-    assert last["reward_terms"]["bounds"] == pytest.approx(bounds)
-    assert rewards[-1] == pytest.approx(bounds + last["reward_terms"]["pass"])
+    assert last["reward_terms"]["bounds"] == cfg.bounds
+    forfeit = expected_forfeit(last)
+    assert -2 * cfg.pass_window_m <= forfeit < -100.0  # the opponent drives on: a real forfeit, bounded
+    assert rewards[-1] == pytest.approx(cfg.bounds + cfg.c_pass * (last["ds"] - infos[-2]["ds"] + forfeit))
+
+
+def test_crash_penalty_is_bounded_by_the_window_for_every_intent(straight):
+    """Hitting the pit wall early costs r_collision plus the intent's rate on at most 2 W_pass
+    metres (the old form charged ~20,000 for every intent on this track)."""
+    cfg = RewardConfig()
+    for intent, rate in (("pass", cfg.c_pass), ("left", cfg.c_side), ("right", cfg.c_side), ("stay", 0.0)):
+        env = RaceEnv(straight, intent=intent)
+        infos, rewards, terminated, _ = run(env, lambda o: np.array([-0.3, 0.2]))
+        last = infos[-1]
+        assert terminated and last["collision_barrier"]
+        assert last["reward_terms"]["task"] == cfg.collision
+        assert last["reward_terms"]["forfeit_m"] == pytest.approx(expected_forfeit(last))
+        assert last["reward_terms"][intent] - last["reward_terms"]["progress"] * (intent == "stay") \
+            >= rate * -2 * cfg.pass_window_m - 50.0
+        assert rewards[-1] >= cfg.collision + rate * -2 * cfg.pass_window_m - 50.0
+
+
+def test_a_step_that_finishes_off_the_road_is_off_track_not_finished(straight):
+    env = RaceEnv(straight, intent="pass")
+    w_left, _ = straight.width_at(straight.finish_s)
+    env.reset(seed=0, options={"ego_s": straight.finish_s - 1.0,
+                               "ego_e": w_left + env.cfg.off_track_margin_m + 1.0})
+    _, reward, terminated, _, info = env.step(np.array([0.0, 0.5]))
+    assert terminated and info["s"] >= straight.finish_s
+    assert info["off_track"] and not info["finished"]
+    assert info["reward_terms"]["finish"] == 0.0 and info["reward_terms"]["bounds"] == RewardConfig().bounds
+
+
+def test_time_left_is_observed(straight):
+    env = RaceEnv(straight, env_config=EnvConfig(time_limit_s=3.0))
+    names = env.observation_names
+    obs, _ = env.reset(seed=0)
+    assert dict(zip(names, obs))["time_left"] == pytest.approx(3.0)
+    for k in range(1, 4):
+        obs, *_ = env.step(np.zeros(2))
+        assert dict(zip(names, obs))["time_left"] == pytest.approx(3.0 - 0.1 * k)
 
 
 def test_time_limit_truncates(straight):
@@ -139,12 +187,13 @@ def test_reward_is_task_plus_intent_term_from_info(straight, intent):
         d_ds = info["ds"] - prev["ds"]
         passing = d_ds if (abs(info["ds"]) <= cfg.pass_window_m or abs(prev["ds"]) <= cfg.pass_window_m) else 0.0
         staying = d_ds if (abs(info["ds"]) <= cfg.stay_window_m or abs(prev["ds"]) <= cfg.stay_window_m) else 0.0
-        side = (info["de"] + cfg.c_margin) if info["opponent_racing"] else 0.0
+        racing = info["opponent_racing"]
+        forfeit = expected_forfeit(info)
         expected = {
-            "pass": cfg.c_pass * passing,
+            "pass": cfg.c_pass * (passing + forfeit),
             "stay": (info["s"] - prev["s"]) + cfg.c_stay * staying,
-            "left": passing + side,
-            "right": passing - side,
+            "left": passing + forfeit + ((info["de"] + cfg.c_margin) if racing else 0.0),
+            "right": passing + forfeit + ((-info["de"] + cfg.c_margin) if racing else 0.0),
         }[intent]
         assert reward == pytest.approx(info["reward_terms"]["task"] + expected, abs=1e-9)
 
@@ -154,9 +203,13 @@ def test_a_parked_left_driver_stops_earning_its_side_bias_when_the_opponent_fini
     obs, info = env.reset(seed=0, options={"ego_e": 5.0})  # parked well left of the opponent
     racing, finished = [], []
     window = RewardConfig().pass_window_m
+    names = env.observation_names
     for _ in range(400):
         prev = info
         obs, reward, terminated, truncated, info = env.step(np.array([0.0, -1.0]))
+        o = dict(zip(names, obs))
+        if not info["opponent_racing"]:  # gone from the track: shown far ahead, not alongside
+            assert (o["opp_racing"], o["opp_dx"], o["opp_dy"], o["dspeed"]) == (0.0, FAR_AHEAD_M, 0.0, 0.0)
         inside = abs(info["ds"]) <= window or abs(prev["ds"]) <= window
         passing = info["ds"] - prev["ds"] if inside else 0.0
         (racing if info["opponent_racing"] else finished).append(reward - passing)
