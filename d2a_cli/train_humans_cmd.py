@@ -59,6 +59,12 @@ def train_humans(
                     state["next"] += 0.05
 
             result = train_population(store, track, name, resolved, run.seed, device=run.device, progress=progress)
+            if result["cached"]:
+                made = result["cached_from"]
+                commit = (made.get("git_commit") or "unknown commit")[:12]
+                err_console.print(f"{name}: reusing stored population {result['id'][:12]} (same run key), trained "
+                                  f"{made.get('created')} by d2a {made.get('version')} at {commit}, "
+                                  f"training code version {made.get('training_code_version')}", soft_wrap=True)
             if state["task"] is not None:
                 bar.update(state["task"], completed=resolved.config.humans.env_steps,
                            stats="(stored result)" if result["cached"] else "done")
@@ -67,14 +73,16 @@ def train_humans(
     def render(r: dict[str, Any]) -> None:
         for pop in r["populations"]:
             # short headers so that the table fits 80 columns; --json has every metric by name
-            table = Table("id", "step", "return", "prog m", "fin", "fin ahead", "coll", "off", "left", "m/s",
-                          title=f"humans/{pop['track']}/{pop['intent']}  expert {pop['expert'][:12]}")
+            table = Table("id", "step", "return", "prog m", "fin", "fin ahead", "coll", "off", "held", "m/s", "ok",
+                          title=f"humans/{pop['track']}/{pop['intent']}  expert {pop['expert'][:12]}"
+                                + ("" if pop["expert_meets_intent"] else " (no checkpoint meets the intent)"))
             for c in pop["checkpoints"]:
                 m = c["metrics"]
                 table.add_row(c["id"][:8], str(c["env_step"]), f"{m['return']:.0f}",
                               f"{m['progress_m']:.0f}", f"{m['finished']:.2f}", f"{m['finished_ahead']:.2f}",
-                              f"{m['collision']:.2f}", f"{m['off_track']:.2f}", f"{m['share_left']:.2f}",
-                              f"{m['mean_speed_m_s']:.1f}")
+                              f"{m['collision']:.2f}", f"{m['off_track']:.2f}", f"{c['criterion']:.2f}",
+                              f"{m['mean_speed_m_s']:.1f}",
+                              ("E " if c["id"] == pop["expert"] else "") + ("yes" if c["meets_intent"] else "no"))
             out_console.print(table)
 
     run.emit({"populations": populations}, render)

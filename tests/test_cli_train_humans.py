@@ -10,7 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from d2a_core import config as config_mod
 from d2a_core.artifacts import Store
+from d2a_core.evaluation.criteria import EXPERT_RULE, choose_expert, meets_intent
+from d2a_core.training import humans as humans_mod
+from d2a_core.training.code_version import TRAINING_CODE_VERSION
+from d2a_core.training.humans import train_population
 
 from d2a_test_helpers import REPO, run_cli
 
@@ -37,7 +42,11 @@ def test_train_humans_population_and_idempotence(cli, track_store):
         assert pop["track"] == "straightaway" and not pop["cached"]
         assert [c["fraction"] for c in pop["checkpoints"]] == [0.5, 1.0]
         assert [c["env_step"] for c in pop["checkpoints"]] == [120, 240]
-        assert pop["expert"] == pop["checkpoints"][-1]["id"]
+        # the expert is chosen by the documented rule, and the population says whether it meets the intent
+        assert pop["expert"] == pop["checkpoints"][choose_expert(pop["intent"], pop["checkpoints"])]["id"]
+        assert pop["expert_meets_intent"] == meets_intent(pop["intent"], store.read_json(pop["expert"], "eval.json")["metrics"])
+        assert pop["expert_rule"] == EXPERT_RULE and pop["training_code_version"] == TRAINING_CODE_VERSION
+        assert all(c["meets_intent"] == meets_intent(pop["intent"], c["metrics"]) for c in pop["checkpoints"])
         assert pop["runtime"]["device"] == "cpu" and pop["runtime"]["cpu_kernels"]
         for c in pop["checkpoints"]:
             m = c["metrics"]
@@ -58,6 +67,23 @@ def test_train_humans_population_and_idempotence(cli, track_store):
     assert again.code == 0 and again.json["populations"][0]["cached"]
     assert again.json["populations"][0]["id"] == pops[0]["id"]
     assert time.monotonic() - start < 30
+    # ... and says so, with the code it came from
+    made = again.json["populations"][0]["cached_from"]
+    assert made["training_code_version"] == TRAINING_CODE_VERSION and "git_commit" in made and made["created"]
+    said = " ".join(again.stderr.split())
+    assert "reusing stored population" in said and f"training code version {TRAINING_CODE_VERSION}" in said
+
+
+def test_a_result_of_other_training_code_is_not_reused(track_store, monkeypatch):
+    """Bumping the training-code version changes the run key: the same command trains again."""
+    resolved = config_mod.load("smoke", None, [])
+    store = Store(track_store)
+    first = train_population(store, "straightaway", "stay", resolved, seed=0)
+    assert first["training_code_version"] == TRAINING_CODE_VERSION
+    monkeypatch.setattr(humans_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION + 1)
+    newer = train_population(store, "straightaway", "stay", resolved, seed=0)
+    assert not newer["cached"] and newer["id"] != first["id"]
+    assert newer["training_code_version"] == TRAINING_CODE_VERSION + 1
 
 
 def test_resume_after_sigkill(cli, track_store):

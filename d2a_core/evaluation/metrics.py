@@ -11,6 +11,9 @@ An episode's infos are the reset info followed by one info per step. Metrics:
 - `mean_speed_m_s`; `overtakes`: times ds went from behind (< 0) to ahead (>= 0) while the
   opponent was racing; `ahead_at_end`: ds > 0 on the last step; `share_left`: share of steps spent
   left of the opponent (de > 0);
+- `held_left`, `held_right`: share of steps spent on that side of the opponent *while racing it*:
+  no more than `HOLD_BEHIND_M` behind it. A car that keeps its side by dropping back and hanging
+  behind ("parking") is not holding a side; this is what the left/right criteria count;
 - `intervention`: mean L2 norm of the assistant's action, when one drove.
 """
 
@@ -26,7 +29,9 @@ from d2a_core.objectives.rewards import INTENTS
 
 METRIC_NAMES = ("progress_m", "return", *(f"return_{i}" for i in INTENTS), "collision", "collision_car",
                 "collision_barrier", "off_track", "finished", "finished_ahead", "finished_never_ahead", "mean_speed_m_s", "overtakes", "ahead_at_end",
-                "share_left", "steps", "intervention")
+                "share_left", "held_left", "held_right", "steps", "intervention")
+# how far behind the opponent a car may be and still count as holding its side (the grid gap is 15 m)
+HOLD_BEHIND_M = 30.0
 
 
 def episode_metrics(infos: Sequence[dict[str, Any]], rewards: Sequence[float]) -> dict[str, float]:
@@ -52,6 +57,8 @@ def episode_metrics(infos: Sequence[dict[str, Any]], rewards: Sequence[float]) -
         "overtakes": float(overtakes),
         "ahead_at_end": float(last["ds"] > 0),
         "share_left": float(np.mean([i["de"] > 0 for i in steps])),
+        "held_left": float(np.mean([i["de"] > 0 and i["ds"] >= -HOLD_BEHIND_M for i in steps])),
+        "held_right": float(np.mean([i["de"] < 0 and i["ds"] >= -HOLD_BEHIND_M for i in steps])),
         "steps": float(len(steps)),
     }
     for intent in INTENTS:

@@ -2,15 +2,17 @@
 
 For one (track, intent) the agent trains on `r^H = r^task + r^intent` against the track's opponent
 replays. At `checkpoints` evenly spaced points of the run it is evaluated unassisted and stored
-as an artifact (kind `human`): the partially trained ones are the imperfect humans, the last one
-the expert. Then a `population` artifact lists them all with the training curve.
+as an artifact (kind `human`): the partially trained ones are the imperfect humans. The expert is
+chosen among them by `evaluation.criteria.choose_expert` (a checkpoint that meets the intent, not
+simply the last). Then a `population` artifact lists them all with the training curve.
 
 Aliases: `humans/<track>/<intent>` (the population) and `humans/<track>/<intent>/expert`.
 
 Resume: after each checkpoint the full training state (agent, replay, counters, curve) is saved
 in `<store>/runs/<run key>/state.pt`; the same command after a crash continues from there. The
-run key hashes everything the result depends on (track, replays, intent, config, seed), and a
-finished run with the same key is returned from the store instead of training again.
+run key hashes everything the result depends on (track, replays, intent, config, seed, and the
+training-code version of `training.code_version`), and a finished run with the same key is
+returned from the store instead of training again, marked `cached` with the code it came from.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.artifacts import Store, canonical_json
 from d2a_core.config import ResolvedConfig
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
+from d2a_core.evaluation.criteria import EXPERT_RULE, choose_expert, criterion_value, meets_intent
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.objectives.rewards import INTENTS
 from d2a_core.pipelines.make_track import opponents_of
@@ -41,6 +44,7 @@ from d2a_core.sim.race_env import RaceEnv
 from d2a_core.sim.replay import OpponentReplay
 from d2a_core.tracks.track import Track
 from d2a_core.training.allocator import keep_freed_memory
+from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.rollout import Collector, evaluate
 
@@ -83,8 +87,8 @@ def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
 
 
 def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int) -> str:
-    identity = {"format": RUN_FORMAT, "kind": "humans", "track": bundle.track_id, "replays": bundle.replay_ids,
-                "intent": intent, "config": config, "seed": seed}
+    identity = {"format": RUN_FORMAT, "kind": "humans", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
+                "replays": bundle.replay_ids, "intent": intent, "config": config, "seed": seed}
     return hashlib.sha256(canonical_json(identity)).hexdigest()
 
 
@@ -135,7 +139,10 @@ def train_population(
     done = [a for a in store.list("population") if a.labels.get("run_key") == key]
     if done:
         result = store.read_json(done[-1].id, "population.json")
-        return dict(result, id=done[-1].id, resumed_from_env_step=None, cached=True)
+        provenance = done[-1].manifest.get("provenance", {})
+        made_by = {"training_code_version": result.get("training_code_version"),
+                   "created": provenance.get("created"), **provenance.get("code", {})}
+        return dict(result, id=done[-1].id, resumed_from_env_step=None, cached=True, cached_from=made_by)
 
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
@@ -197,11 +204,13 @@ def train_population(
         for env in envs:
             env.close()
 
-    expert = checkpoints[-1]
+    expert = checkpoints[choose_expert(intent, checkpoints)]
     # How the run executed: the compiled CPU kernels change float rounding, not the method.
     runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
     result = {"intent": intent, "track": bundle.track.name, "track_id": bundle.track_id, "seed": seed,
-              "expert": expert["id"], "checkpoints": checkpoints, "runtime": runtime,
+              "expert": expert["id"], "expert_env_step": expert["env_step"],
+              "expert_meets_intent": expert["meets_intent"], "expert_rule": EXPERT_RULE,
+              "training_code_version": TRAINING_CODE_VERSION, "checkpoints": checkpoints, "runtime": runtime,
               "resumed_from_env_step": resumed_from}
     with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
                       labels={**tags, "run_key": key}) as writer:
@@ -223,4 +232,5 @@ def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, ma
                       labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
         writer.add_bytes("agent.pt", _agent_bytes(agent))
         writer.add_json("eval.json", {"metrics": metrics, "episodes": episodes})
-    return {"id": writer.artifact.id, "env_step": env_steps, "fraction": fraction, "metrics": metrics}
+    return {"id": writer.artifact.id, "env_step": env_steps, "fraction": fraction, "metrics": metrics,
+            "meets_intent": meets_intent(intent, metrics), "criterion": criterion_value(intent, metrics)}

@@ -63,3 +63,13 @@ def test_bad_lengths_are_rejected():
     infos, rewards = episode([-1.0, 0.0])
     with pytest.raises(ValueError):
         episode_metrics(infos, rewards + [0.0])
+
+
+def test_holding_a_side_means_racing_alongside_not_dropping_back():
+    """A driver left of the opponent but far behind it ("parked" on its side) does not hold left."""
+    alongside = [info(-5.0), info(-2.0, de=2.0), info(1.0, de=2.5), info(6.0, de=-1.0), info(9.0, de=-2.0)]
+    m = episode_metrics(alongside, [0.0] * 4)
+    assert m["held_left"] == 0.5 and m["held_right"] == 0.5
+    parked = [info(-15.0), info(-25.0, de=2.0), info(-40.0, de=2.0), info(-80.0, de=2.0), info(-120.0, de=2.0)]
+    m = episode_metrics(parked, [0.0] * 4)
+    assert m["share_left"] == 1.0 and m["held_left"] == 0.25 and m["held_right"] == 0.0

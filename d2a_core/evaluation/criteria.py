@@ -1,0 +1,59 @@
+"""What it means for a driver to meet its intent, and which checkpoint of a population is the
+expert. Defined once here; `train-humans`, the docs and the evaluation use these.
+
+Criteria, over a checkpoint's unassisted evaluation episodes (rates are shares of episodes,
+`held_*` a mean over episodes of the share of steps):
+
+- pass:  finishes ahead of the opponent in >= 80 % (`finished_ahead`);
+- stay:  finishes without ever getting ahead in >= 80 % (`finished_never_ahead`);
+- left / right: finishes in >= 80 % and holds its side of the opponent on >= 70 % of its steps
+  (`held_left` / `held_right`: on that side and no more than `HOLD_BEHIND_M` behind it, so a
+  driver that keeps its side by dropping back and hanging behind does not qualify).
+
+The expert. The paper takes the last checkpoint; a last checkpoint that parks or crashes more
+than an earlier one is no expert. Rule: among the checkpoints that meet the criterion, the one
+with the highest mean return under its own objective (ties: the later one); when none meets it,
+the highest-return checkpoint, and the population says `expert_meets_intent: false`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from d2a_core.evaluation.metrics import HOLD_BEHIND_M
+
+FINISH_RATE = 0.8
+HOLD_SHARE = 0.7
+EXPERT_RULE = "highest mean return among checkpoints meeting the intent criterion (else highest return)"
+
+__all__ = ["EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent"]
+
+
+def criterion_value(intent: str, metrics: Mapping[str, float]) -> float:
+    """The one number a seeds x intents table shows: the rate the criterion thresholds
+    (for left/right the side share, which only counts together with the finish rate)."""
+    if intent == "pass":
+        return float(metrics["finished_ahead"])
+    if intent == "stay":
+        return float(metrics["finished_never_ahead"])
+    if intent in ("left", "right"):
+        return float(metrics[f"held_{intent}"])
+    raise ValueError(f"unknown intent {intent!r}")
+
+
+def meets_intent(intent: str, metrics: Mapping[str, float]) -> bool:
+    """Whether aggregated evaluation metrics meet the intent's criterion (module docstring)."""
+    if intent in ("pass", "stay"):
+        return criterion_value(intent, metrics) >= FINISH_RATE
+    return float(metrics["finished"]) >= FINISH_RATE and criterion_value(intent, metrics) >= HOLD_SHARE
+
+
+def choose_expert(intent: str, checkpoints: Sequence[Mapping[str, Any]]) -> int:
+    """Index of the expert among `checkpoints` (each with `metrics`), by the rule above."""
+    if not checkpoints:
+        raise ValueError("a population needs at least one checkpoint")
+    meeting = [i for i, c in enumerate(checkpoints) if meets_intent(intent, c["metrics"])]
+    candidates = meeting or list(range(len(checkpoints)))
+    # max over (return, index): the highest return, and the later checkpoint on a tie
+    return max(candidates, key=lambda i: (float(checkpoints[i]["metrics"]["return"]), i))

@@ -1,0 +1,16 @@
+"""The version of the code that produces training results; part of every run key.
+
+Bump `TRAINING_CODE_VERSION` in the same commit as any change that alters what a training run
+produces for the same config and seed (rewards, environment, observation, learner, expert rule),
+so that the next run trains afresh instead of returning a result made by older code. Changes that
+only alter speed or float rounding (kernels, threading) do not bump it; the manifest's git commit
+records those.
+
+History:
+- 1: everything up to d745ced (2026-11-30).
+- 2: 2026-12-01: crash forfeit bounded by the pass window and moved into the intent terms;
+  right mirrors left; a time-left input; a finished opponent shown far ahead; a finish off the
+  road is no finish; actor(sg(s)) in imagination; the expert chosen by `evaluation.criteria`.
+"""
+
+TRAINING_CODE_VERSION = 2
