@@ -19,8 +19,19 @@ from d2a_core.tracks.track_file import load_track
 SPEC_SUFFIXES = (".yaml", ".yml")
 CSV_SUFFIXES = (".csv",)
 TRACK_SUFFIXES = (".npz",)
-# The specs shipped with the repository (`tracks/` beside the package, for a source checkout).
-SHIPPED_TRACKS_DIR = Path(__file__).resolve().parents[2] / "tracks"
+
+
+def _shipped_tracks_dir() -> Path:
+    """The shipped specs: the repository's `tracks/`, installed as the package `d2a_tracks`
+    (a wheel carries it; an editable install maps it to the checkout)."""
+    try:
+        import d2a_tracks
+    except ImportError:  # a bare source tree on sys.path without installing
+        return Path(__file__).resolve().parents[2] / "tracks"
+    return Path(d2a_tracks.__file__).resolve().parent
+
+
+SHIPPED_TRACKS_DIR = _shipped_tracks_dir()
 # a track name becomes part of the alias track/<name>: no leading '.', '-' (reads as an option) or '..'
 _NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
