@@ -18,6 +18,7 @@ recorded in the replays' own config.
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +29,7 @@ import numpy as np
 from d2a_core.artifacts import Store
 from d2a_core.artifacts.store import alias_problem
 from d2a_core.config import ResolvedConfig
-from d2a_core.errors import D2AError, UsageError
+from d2a_core.errors import UsageError
 from d2a_core.sim.episode_log import CarPose, EpisodeRecorder
 from d2a_core.sim.opponents import Lap, drive_lap, line_profile
 from d2a_core.sim.recording import scene_of
@@ -74,6 +75,30 @@ def paces(count: int, low: float, high: float) -> list[float]:
     return [round(float(p), 4) for p in np.linspace(low, high, count)]
 
 
+# room a car needs beside its own width on the narrowest stretch of road (each side)
+EDGE_ROOM_M = 0.3
+
+
+def check_drivable(track: Track, vehicle, car_width_m: float, source: str) -> None:
+    """Fail where the road is impossible for any car, before opponents try and fail to drive it.
+
+    A bend tighter than the car's kinematic turning circle (wheelbase / tan(full lock)) cannot be
+    followed at any speed, and a road narrower than the car cannot be driven on at all.
+    """
+    min_radius = vehicle.wheelbase_m / math.tan(vehicle.max_steer_rad)
+    curvature = np.abs(np.asarray(track.curvature)[: np.searchsorted(track.s, track.finish_s) + 1])
+    if len(curvature) and float(np.max(curvature)) * min_radius > 1.0:
+        k = int(np.argmax(curvature))
+        raise UsageError(f"{source}: the bend at s={track.s[k]:.1f} m has a radius of {1 / curvature[k]:.1f} m; the car "
+                         f"turns no tighter than {min_radius:.1f} m (vehicle.max_steer_rad), so no driver can follow it")
+    width = np.asarray(track.w_left) + np.asarray(track.w_right)
+    need = car_width_m + 2 * EDGE_ROOM_M
+    if float(np.min(width)) < need:
+        k = int(np.argmin(width))
+        raise UsageError(f"{source}: the road is {width[k]:.2f} m wide at s={track.s[k]:.1f} m; a "
+                         f"{car_width_m:.2f} m car needs at least {need:.2f} m")
+
+
 def make_track(
     store: Store,
     source: str,
@@ -92,6 +117,7 @@ def make_track(
     problem = alias_problem(f"track/{track.name}")
     if problem:  # checked before anything is written: the alias is the last thing make-track writes
         raise UsageError(f"track name {track.name!r} cannot name an alias ({problem}); give another with --name")
+    check_drivable(track, cfg.vehicle, cfg.env.car_width_m, str(src.path))
     track_config = resolved.section(*TRACK_SECTIONS)
     with store.lease(), tempfile.TemporaryDirectory(prefix="d2a-make-track-") as tmp:
         tmp = Path(tmp)
@@ -122,10 +148,12 @@ def make_track(
                 lap = drive_lap(track, pace, line, cfg.vehicle, env.dt, env.start_speed_m_s, env.car_width_m,
                                 cfg.driver)
             if not lap.valid:
-                raise D2AError(
-                    f"opponent {index} at pace {pace} could not complete track {track.name!r}: "
-                    f"finished={lap.finished}, came {max(lap.max_edge_excursion_m, 0):.2f} m past a road edge; "
-                    "lower opponents.pace_max or check the track spec"
+                # the geometry passed check_drivable, so the pace or the line is what fails: say where
+                where = f"stopped at s={float(lap.arrays['s'][-1]):.1f} m" if not lap.finished else \
+                    f"came {max(lap.max_edge_excursion_m, 0):.2f} m past a road edge"
+                raise UsageError(
+                    f"{src.path}: opponent {index} at pace {pace} could not drive track {track.name!r} even on the "
+                    f"centre line ({where}); lower opponents.pace_max or ease the track there"
                 )
             meta = {"kind": "opponent-replay", "track": track.name, "track_id": track_art.id, "index": index,
                     "pace": pace, "finish_time_s": lap.finish_time_s, "seed": seed}

@@ -18,6 +18,7 @@ import numpy as np
 
 from d2a_core.errors import SpecError
 from d2a_core.tracks.config import CentrelineCsvConfig
+from d2a_core.tracks.limits import MAX_COORD_M
 
 COLUMNS = ("x_m", "y_m", "w_tr_right_m", "w_tr_left_m", "z_m")
 # Two consecutive points closer than this are a duplicate, which has no direction.
@@ -96,6 +97,8 @@ def read_centreline_csv(path: str | Path, config: CentrelineCsvConfig | None = N
                 raise SpecError(f"{source}:{number}: {COLUMNS[column]}: {field!r} is not a number") from None
             if not math.isfinite(value):
                 raise SpecError(f"{source}:{number}: {COLUMNS[column]}: must be finite (got {field})")
+            if abs(value) > MAX_COORD_M:  # 1e300 would overflow the arc-length sums
+                raise SpecError(f"{source}:{number}: {COLUMNS[column]}: must be within +-{MAX_COORD_M:g} m (got {field})")
             if column in (2, 3) and value <= 0:
                 raise SpecError(f"{source}:{number}: {COLUMNS[column]}: must be > 0 (got {field})")
             values.append(value)

@@ -20,7 +20,9 @@ import numpy as np
 
 from d2a_core.errors import SpecError
 from d2a_core.tracks.centreline_csv import RawCentreline, read_centreline_csv
-from d2a_core.tracks.config import CentrelineCsvConfig, FrenetSearchConfig
+from d2a_core.tracks.config import CentrelineCsvConfig, FrenetSearchConfig, TrackGeometryConfig
+from d2a_core.tracks.limits import MAX_GRADE, MAX_SAMPLES
+from d2a_core.tracks.overlap import find_road_overlap
 from d2a_core.tracks.track import GridSlot, StartGrid, Track
 
 # Lengths within this of a limit count as equal to it (float noise in user-given numbers).
@@ -66,6 +68,7 @@ class _FineLap:
 
     def __init__(self, raw: RawCentreline, config: CentrelineCsvConfig) -> None:
         self.closed = raw.closed
+        self.lines = raw.lines
         channels = [raw.x, raw.y, raw.w_left, raw.w_right, raw.z if raw.z is not None else np.zeros_like(raw.x)]
         if raw.closed:  # close the polygon so interpolation covers the last-to-first step
             channels = [np.append(c, c[0]) for c in channels]
@@ -127,6 +130,7 @@ def load_centreline_csv(
     config: CentrelineCsvConfig | None = None,
     name: str | None = None,
     frenet_config: FrenetSearchConfig | None = None,
+    geometry: TrackGeometryConfig | None = None,
 ) -> Track:
     """Build a `Track` from a racing-line CSV, optionally a section `start_m .. start_m + length_m`.
 
@@ -146,8 +150,16 @@ def load_centreline_csv(
     """
     config = config or CentrelineCsvConfig()
     source = str(path)
-    lap = _FineLap(read_centreline_csv(path, config), config)
+    raw = read_centreline_csv(path, config)
+    raw_length = float(np.sum(np.hypot(np.diff(raw.x), np.diff(raw.y))))
+    if raw_length / config.fine_spacing_m > MAX_SAMPLES:  # checked before the grid is allocated
+        raise SpecError(f"{source}: the line is {raw_length:.0f} m long: at tracks.csv.fine_spacing_m="
+                        f"{config.fine_spacing_m} that is more than {MAX_SAMPLES} samples")
+    lap = _FineLap(raw, config)
     start_s, length = _check_cut(lap, 0.0 if start_m is None else float(start_m), length_m, source)
+    if length / config.sample_spacing_m > MAX_SAMPLES:
+        raise SpecError(f"{source}: the section is {length:.0f} m long: at tracks.csv.sample_spacing_m="
+                        f"{config.sample_spacing_m} that is more than {MAX_SAMPLES} samples")
     n = max(2, int(round(length / config.sample_spacing_m)) + 1)
     s = np.linspace(0.0, length, n)
     on_lap = start_s + s
@@ -192,4 +204,41 @@ def load_centreline_csv(
         w_l, w_r = track.width_at(slot.s)
         if not -w_r < slot.e < w_l:
             raise SpecError(f"{source}: start grid: the {role}'s lateral offset {slot.e} m is off the road at s={slot.s}")
+    _check_section_geometry(track, lap, source, geometry or TrackGeometryConfig())
     return track
+
+
+def _line_of(raw_lines: np.ndarray, lap: _FineLap, s_on_lap: float) -> int:
+    """The CSV line nearest to a position on the lap (for error messages)."""
+    fraction = (s_on_lap % lap.length) / lap.length if lap.length > 0 else 0.0
+    return int(raw_lines[min(int(fraction * len(raw_lines)), len(raw_lines) - 1)])
+
+
+def _check_section_geometry(track: Track, lap: _FineLap, source: str, geometry: TrackGeometryConfig) -> None:
+    """The checks a compiled spec gets: no impossible climb, no road that overlaps itself."""
+    start = float(track.source["start_m"])
+    steep = np.flatnonzero(np.abs(track.grade) > MAX_GRADE)
+    if len(steep):
+        k = int(steep[np.argmax(np.abs(track.grade[steep]))])
+        raise SpecError(f"{source}:{_line_of(lap.lines, lap, start + track.s[k])}: z_m: the road climbs "
+                        f"{abs(track.grade[k]):.0%} at s={track.s[k]:.1f} m, steeper than {MAX_GRADE:.0%}")
+    s = track.s
+    # a full closed lap ends where it starts: leave out a road width at the end so that the two
+    # ends, which meet by design, do not count as an overlap
+    keep = len(s)
+    if lap.closed and track.length >= lap.length - 1e-6:
+        margin = 1.0 + float(np.max(track.w_left + track.w_right))
+        keep = int(np.searchsorted(s, s[-1] - margin))
+    if keep < 2:
+        return
+    nx, ny = -np.sin(track.heading[:keep]), np.cos(track.heading[:keep])
+    x, y = track.x[:keep], track.y[:keep]
+    left = np.stack([x + track.w_left[:keep] * nx, y + track.w_left[:keep] * ny], axis=1)
+    right = np.stack([x - track.w_right[:keep] * nx, y - track.w_right[:keep] * ny], axis=1)
+    spacing = float(s[1] - s[0])
+    crossing = find_road_overlap(s[:keep], left, right, max(1, int(round(geometry.overlap_check_spacing_m / spacing))))
+    if crossing is not None:
+        raise SpecError(
+            f"{source}: the racing line crosses itself: the road near s={crossing.s_a:.1f} m (line "
+            f"{_line_of(lap.lines, lap, start + crossing.s_a)}) overlaps the road near s={crossing.s_b:.1f} m "
+            f"(line {_line_of(lap.lines, lap, start + crossing.s_b)})")

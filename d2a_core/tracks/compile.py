@@ -10,6 +10,7 @@ from d2a_core.errors import SpecError
 from d2a_core.tracks.config import FrenetSearchConfig, TrackGeometryConfig
 from d2a_core.tracks.frenet import CentrelineFrame
 from d2a_core.tracks.interpolation import KnotProfile
+from d2a_core.tracks.limits import MAX_GRADE
 from d2a_core.tracks.overlap import Crossing, find_barrier_crossing, find_barrier_on_road, find_road_overlap
 from d2a_core.tracks.segments import PlanCentreline, curvature_pieces, sample_centreline
 from d2a_core.tracks.spec import TrackSpec
@@ -91,6 +92,11 @@ def compile_spec(
     w_left, w_right = left_profile.value(plan.s), right_profile.value(plan.s)
     elevation = KnotProfile(spec.elevation)
     z, grade = elevation.value(plan.s), elevation.derivative(plan.s)
+    steep = np.flatnonzero(np.abs(grade) > MAX_GRADE)
+    if len(steep):
+        k = int(steep[np.argmax(np.abs(grade[steep]))])
+        raise SpecError(f"{source}: elevation: the road climbs {abs(grade[k]):.0%} at s={plan.s[k]:.1f} m, steeper "
+                        f"than {MAX_GRADE:.0%} (no car climbs that); spread the height change over more metres")
 
     reach_left, reach_right = w_left.copy(), w_right.copy()
     for barrier in spec.barriers:

@@ -152,7 +152,8 @@ class StartGrid(_Strict):
 class TrackSpec(_Strict):
     """A whole track spec (one YAML file)."""
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    # the name becomes the alias track/<name>: it starts with a letter or digit (not '.', '-')
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
     description: str = ""
     sample_spacing_m: float = Field(0.5, gt=0, le=5.0)
     start_pose: StartPose = Field(default_factory=StartPose)

@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from d2a_core.errors import SpecError
 from d2a_core.tracks.interpolation import KnotProfile
+from d2a_core.tracks.limits import MAX_COORD_M, MAX_SAMPLES
 from d2a_core.tracks.spec import TrackSpec, Width
 
 Loc = tuple[str | int, ...]
@@ -118,6 +119,15 @@ def check_spec_consistency(spec: TrackSpec) -> list[tuple[Loc, str]]:
     """Checks that need the whole spec (positions against the summed segment length, the grid inside the road)."""
     problems: list[tuple[Loc, str]] = []
     total = spec.total_length
+    samples = total / spec.sample_spacing_m
+    if samples > MAX_SAMPLES:  # checked before sampling: it would not fit in memory
+        problems.append((("sample_spacing_m",), f"{spec.sample_spacing_m} m over {total:.0f} m of track is "
+                         f"{samples:.3g} samples, more than {MAX_SAMPLES}; use a coarser spacing"))
+        return problems
+    for axis in ("x", "y"):
+        value = getattr(spec.start_pose, axis, 0.0)
+        if abs(value) > MAX_COORD_M:
+            problems.append((("start_pose", axis), f"must be within +-{MAX_COORD_M:g} m (got {value})"))
     limit = total + _LENGTH_TOLERANCE_M
     if spec.finish_s > limit:
         problems.append((("finish_s",), f"must be <= the track length {total:.3f} m (got {spec.finish_s})"))
