@@ -902,6 +902,10 @@ class Store:
             leases, stale = self._live_leases(remove_stale=not dry_run)
             report.stale_leases = stale
             blockers = [p.what if p.alias else f"{p.path}: {p.what}" for p in bad_refs + bad_holds]
+            # an alias to a missing artifact is damage too (gc never collects an aliased artifact):
+            # a flipped id in it may be hiding the artifact it was meant to protect
+            blockers += [f"alias {a!r} points to missing artifact {t[:12]}" for a, t in refs.items()
+                         if not self._manifest_path(t).is_file()]
             roots = list(refs.values())
             for name, ids in leases.items():
                 report.held[f"lease {name}"] = ids
