@@ -25,6 +25,9 @@ of its roots it deletes nothing: it cannot tell what that root protects.
 
 Reads check hashes: a manifest is re-hashed against its id when it is loaded, and a blob when
 `path()`, `read_bytes()` or `export()` hands it out.
+
+Leases and run holds live in `leases.py`, verify and gc in `upkeep.py`, filesystem helpers in
+`fsutil.py`; `docs/reliability.md` states the promises.
 """
 
 from __future__ import annotations
@@ -37,10 +40,7 @@ import json
 import os
 import re
 import secrets
-import shutil
 import tempfile
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Iterable, Iterator
 
@@ -52,35 +52,17 @@ from d2a_core.artifacts.manifest import (
     canonical_json,
     provenance,
 )
+from d2a_core.artifacts import upkeep
+from d2a_core.artifacts.fsutil import CHUNK, BadFile, fsync_dir, os_reason, sha256_file, storage_errors
+from d2a_core.artifacts.leases import FULL_ID, HOLDS_FILE, HOLDS_FORMAT, Lease, read_run_holds
+from d2a_core.artifacts.upkeep import GcReport, VerifyProblem
 from d2a_core.errors import AmbiguousRefError, IntegrityError, NotFoundError, StoreError, UsageError
 
-CHUNK = 1 << 20
 HEX = re.compile(r"^[0-9a-f]+$")
-FULL_ID = re.compile(r"^[0-9a-f]{64}$")
 REF_CONTENT = re.compile(r"^([0-9a-f]{64})\n?$")  # exactly what tag() writes: any flipped byte fails
 ALIAS = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
 FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
 MIN_PREFIX = 4
-HOLDS_FORMAT = 1
-HOLDS_FILE = "holds.json"
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def sha256_file(path: Path) -> tuple[str, int]:
-    digest = hashlib.sha256()
-    size = 0
-    with open(path, "rb") as fh:
-        while chunk := fh.read(CHUNK):
-            digest.update(chunk)
-            size += len(chunk)
-    return digest.hexdigest(), size
 
 
 def alias_problem(alias: str) -> str | None:
@@ -90,20 +72,6 @@ def alias_problem(alias: str) -> str | None:
     if HEX.match(alias) and len(alias) >= MIN_PREFIX:
         return "a hex string would read as an artifact id"
     return None
-
-
-def _os_reason(exc: OSError) -> str:
-    return exc.strerror or str(exc)
-
-
-@contextlib.contextmanager
-def _storage(what: str, path: Path | None = None) -> Iterator[None]:
-    """Turn an OSError from the filesystem into a StoreError naming the path and the OS reason."""
-    try:
-        yield
-    except OSError as exc:
-        where = exc.filename or path
-        raise StoreError(f"{what}: {where}: {_os_reason(exc)}") from None
 
 
 class _HashingWriter:
@@ -118,11 +86,11 @@ class _HashingWriter:
     def write(self, data: bytes) -> int:
         self._digest.update(data)
         self.size += len(data)
-        with _storage("cannot write to the store", self._path):
+        with storage_errors("cannot write to the store", self._path):
             return self._fh.write(data)
 
     def flush(self) -> None:
-        with _storage("cannot write to the store", self._path):
+        with storage_errors("cannot write to the store", self._path):
             self._fh.flush()
 
     def hexdigest(self) -> str:
@@ -134,65 +102,6 @@ class _HashingWriter:
 
     def writable(self) -> bool:
         return True
-
-
-@dataclass
-class VerifyProblem:
-    artifact: str | None
-    what: str
-    alias: str | None = None
-    path: str | None = None
-    repaired: str | None = None  # what `verify --repair` did about it
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"artifact": self.artifact, "alias": self.alias, "problem": self.what, "path": self.path,
-                "repaired": self.repaired}
-
-
-@dataclass
-class GcReport:
-    artifacts: list[str] = field(default_factory=list)
-    blobs: list[str] = field(default_factory=list)
-    temp_files: list[str] = field(default_factory=list)
-    stale_leases: list[str] = field(default_factory=list)
-    held: dict[str, list[str]] = field(default_factory=dict)  # root -> artifacts it keeps (leases, runs)
-    bytes_freed: int = 0
-    dry_run: bool = False
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "dry_run": self.dry_run,
-            "artifacts": self.artifacts,
-            "blobs": len(self.blobs),
-            "temp_files": len(self.temp_files),
-            "stale_leases": len(self.stale_leases),
-            "held": self.held,
-            "bytes_freed": self.bytes_freed,
-        }
-
-
-class _BadFile(Exception):
-    """A store file that exists but cannot be used (carries the reason for reports)."""
-
-
-class Lease:
-    """Artifacts a live process uses, in `leases/<pid>-<token>.json`, flock-ed while it lives.
-
-    gc treats the ids of a lease whose lock is held as roots; a lease whose lock it can take
-    belongs to a dead process and is removed. The file is rewritten in place (never renamed):
-    the lock belongs to its inode.
-    """
-
-    def __init__(self, path: Path, fd: int):
-        self.path = path
-        self.fd = fd
-        self.ids: list[str] = []
-        self.depth = 1
-
-    def write(self) -> None:
-        data = json.dumps({"pid": os.getpid(), "artifacts": self.ids}).encode()
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, data, 0)
 
 
 class Store:
@@ -253,7 +162,7 @@ class Store:
     def _ensure_layout(self) -> None:
         self._check_root()
         for path in (self._objects, self._manifests, self._refs, self._tmp, self._leases):
-            with _storage(f"cannot create the store layout in {self.root}", path):
+            with storage_errors(f"cannot create the store layout in {self.root}", path):
                 path.mkdir(parents=True, exist_ok=True)
 
     @contextlib.contextmanager
@@ -272,7 +181,7 @@ class Store:
         lock_path = self.root / "lock"
         if write:
             self._ensure_layout()
-            with _storage("cannot open the store lock", lock_path):
+            with storage_errors("cannot open the store lock", lock_path):
                 fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
         else:
             self._check_root()
@@ -292,7 +201,7 @@ class Store:
                 os.close(fd)
 
     def _temp_file(self, suffix: str = "") -> tuple[IO[bytes], Path]:
-        with _storage("cannot write to the store", self._tmp):
+        with storage_errors("cannot write to the store", self._tmp):
             fd, name = tempfile.mkstemp(dir=self._tmp, prefix=f"{os.getpid()}-", suffix=suffix)
         return os.fdopen(fd, "wb"), Path(name)
 
@@ -306,7 +215,7 @@ class Store:
         try:
             self._parse_manifest(path.read_bytes(), art_id)
             return True
-        except (OSError, _BadFile):
+        except (OSError, BadFile):
             return False
 
     def _install(self, tmp: Path, final: Path, valid) -> None:
@@ -315,7 +224,7 @@ class Store:
         An existing copy is kept when `valid(final)` (content-addressed, so it is equal) and
         replaced when it is not: a rebuild repairs a corrupted blob or manifest.
         """
-        with _storage("cannot write to the store", final):
+        with storage_errors("cannot write to the store", final):
             final.parent.mkdir(parents=True, exist_ok=True)
             os.chmod(tmp, 0o444)
             try:
@@ -323,9 +232,9 @@ class Store:
             except FileExistsError:
                 if not valid(final):
                     os.replace(tmp, final)
-                    _fsync_dir(final.parent)
+                    fsync_dir(final.parent)
             else:
-                _fsync_dir(final.parent)
+                fsync_dir(final.parent)
             finally:
                 tmp.unlink(missing_ok=True)
 
@@ -347,7 +256,7 @@ class Store:
         with self._lock(exclusive=False):
             # created and locked under the store lock, so gc never sees it unlocked
             path = self._leases / f"{os.getpid()}-{secrets.token_hex(6)}.json"
-            with _storage("cannot write to the store", path):
+            with storage_errors("cannot write to the store", path):
                 fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
                 fcntl.flock(fd, fcntl.LOCK_EX)
                 lease = Lease(path, fd)
@@ -367,7 +276,7 @@ class Store:
         if lease is None or art_id in lease.ids:
             return
         lease.ids.append(art_id)
-        with _storage("cannot write to the store", lease.path):
+        with storage_errors("cannot write to the store", lease.path):
             lease.write()
 
     def _hold(self, art_id: str, ref: str) -> None:
@@ -395,7 +304,7 @@ class Store:
                                     f"not in store {self.root}")
             for art_id in ids:
                 self._register(art_id)
-            with _storage("cannot write the run state", path):
+            with storage_errors("cannot write the run state", path):
                 path.parent.mkdir(parents=True, exist_ok=True)
                 fh, tmp = self._temp_file(".holds")
                 with fh:
@@ -403,31 +312,18 @@ class Store:
                     fh.flush()
                     os.fsync(fh.fileno())
                 os.replace(tmp, path)
-                _fsync_dir(path.parent)
+                fsync_dir(path.parent)
 
     def release_run(self, key: str) -> None:
         """Drop run `key`'s holds (its artifacts stay while an alias or another root reaches them)."""
         path = self.run_dir(key) / HOLDS_FILE
-        with self._lock(exclusive=False), _storage("cannot write the run state", path):
+        with self._lock(exclusive=False), storage_errors("cannot write the run state", path):
             path.unlink(missing_ok=True)
 
     def run_holds(self) -> tuple[dict[str, list[str]], list[VerifyProblem]]:
         """Each run key -> the ids its holds.json names, and the holds files that cannot be read."""
-        holds: dict[str, list[str]] = {}
-        bad: list[VerifyProblem] = []
-        if not self._runs.is_dir():
-            return holds, bad
-        for path in sorted(self._runs.glob(f"*/{HOLDS_FILE}")):
-            try:
-                data = json.loads(path.read_bytes())
-                ids = data["artifacts"]
-                if data.get("format") != HOLDS_FORMAT or not all(isinstance(i, str) and FULL_ID.match(i) for i in ids):
-                    raise ValueError("not a list of artifact ids")
-            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-                bad.append(VerifyProblem(None, f"run holds file unreadable ({exc})", path=str(path)))
-                continue
-            holds[path.parent.name] = ids
-        return holds, bad
+        holds, bad = read_run_holds(self._runs)
+        return holds, [VerifyProblem(None, f"run holds file unreadable ({why})", path=str(path)) for path, why in bad]
 
     # ----------------------------------------------------------------------------- writing
     def create(
@@ -473,7 +369,7 @@ class Store:
         # the id covers only the identity; this covers every byte, provenance included
         stored["sha256"] = hashlib.sha256(canonical_json(stored)).hexdigest()
         fh, tmp = self._temp_file(".json")
-        with fh, _storage("cannot write to the store", tmp):
+        with fh, storage_errors("cannot write to the store", tmp):
             fh.write(canonical_json(stored))
             fh.flush()
             os.fsync(fh.fileno())
@@ -496,14 +392,14 @@ class Store:
         try:
             text = path.read_bytes().decode("ascii")
         except IsADirectoryError:
-            raise _BadFile("is a directory, not an alias file") from None
+            raise BadFile("is a directory, not an alias file") from None
         except OSError as exc:
-            raise _BadFile(f"cannot be read ({_os_reason(exc)})") from None
+            raise BadFile(f"cannot be read ({os_reason(exc)})") from None
         except UnicodeDecodeError:
-            raise _BadFile("does not hold an artifact id (binary data)") from None
+            raise BadFile("does not hold an artifact id (binary data)") from None
         match = REF_CONTENT.match(text)
         if not match:
-            raise _BadFile(f"does not hold an artifact id ({text.strip()[:20]!r})")
+            raise BadFile(f"does not hold an artifact id ({text.strip()[:20]!r})")
         return match.group(1)
 
     def _scan_refs(self) -> tuple[dict[str, str], list[VerifyProblem]]:
@@ -517,7 +413,7 @@ class Store:
             alias = path.relative_to(self._refs).as_posix()[: -len(".ref")]
             try:
                 good[alias] = self._read_ref_file(path)
-            except _BadFile as exc:
+            except BadFile as exc:
                 bad.append(VerifyProblem(None, f"alias {alias!r}: {path} {exc}", alias=alias, path=str(path)))
         return dict(sorted(good.items())), bad
 
@@ -534,7 +430,7 @@ class Store:
             if path.exists() or path.is_symlink():
                 try:
                     art_id = self._read_ref_file(path)
-                except _BadFile as exc:
+                except BadFile as exc:
                     raise IntegrityError(
                         f"alias {ref!r}: {path} {exc}; re-tag it (d2a artifacts tag ID {ref}) or run "
                         "d2a artifacts verify --repair") from None
@@ -570,26 +466,26 @@ class Store:
         try:
             manifest = json.loads(data)
         except (ValueError, UnicodeDecodeError) as exc:
-            raise _BadFile(f"manifest is not valid JSON ({exc})") from None
+            raise BadFile(f"manifest is not valid JSON ({exc})") from None
         if not isinstance(manifest, dict) or any(k not in manifest for k in (*IDENTITY_FIELDS, "id", "provenance")):
-            raise _BadFile("manifest is incomplete")
+            raise BadFile("manifest is incomplete")
         try:
             actual = artifact_id(manifest)
         except (TypeError, ValueError) as exc:
-            raise _BadFile(f"manifest is not canonical ({exc})") from None
+            raise BadFile(f"manifest is not canonical ({exc})") from None
         if manifest["id"] != art_id or actual != art_id:
-            raise _BadFile("manifest does not match its id (modified)")
+            raise BadFile("manifest does not match its id (modified)")
         if not isinstance(manifest["files"], dict) or not isinstance(manifest["inputs"], list):
-            raise _BadFile("manifest is malformed")
+            raise BadFile("manifest is malformed")
         # written canonically with a checksum of the whole file, so a flipped byte anywhere (the
         # unhashed provenance too) is caught; manifests from before the checksum only get the id check
         if "sha256" in manifest:
             body = {k: v for k, v in manifest.items() if k != "sha256"}
             if data != canonical_json(manifest) or hashlib.sha256(canonical_json(body)).hexdigest() != manifest["sha256"]:
-                raise _BadFile("manifest does not match its checksum (modified)")
+                raise BadFile("manifest does not match its checksum (modified)")
         prov = manifest["provenance"]
         if not isinstance(prov, dict) or not isinstance(prov.get("created"), str):
-            raise _BadFile("manifest provenance is damaged")
+            raise BadFile("manifest provenance is damaged")
         return manifest
 
     def _load_manifest(self, art_id: str, ref: str | None = None) -> dict[str, Any]:
@@ -600,10 +496,10 @@ class Store:
         except FileNotFoundError:
             raise NotFoundError(f"artifact {named} is not in store {self.root}") from None
         except OSError as exc:
-            raise StoreError(f"cannot read artifact {named}: {path}: {_os_reason(exc)}") from None
+            raise StoreError(f"cannot read artifact {named}: {path}: {os_reason(exc)}") from None
         try:
             return self._parse_manifest(data, art_id)
-        except _BadFile as exc:
+        except BadFile as exc:
             raise IntegrityError(f"artifact {named}: {exc}; run d2a artifacts verify --repair") from None
 
     def get(self, ref: str) -> Artifact:
@@ -620,7 +516,7 @@ class Store:
         except FileNotFoundError:
             raise IntegrityError(f"{named}: the blob of file {name!r} is missing; rebuild the artifact") from None
         except OSError as exc:
-            raise StoreError(f"cannot read {named}: {path}: {_os_reason(exc)}") from None
+            raise StoreError(f"cannot read {named}: {path}: {os_reason(exc)}") from None
         stamp = (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
         if self._verified.get(info["sha256"]) == stamp:
             return path
@@ -647,7 +543,7 @@ class Store:
         except FileNotFoundError:
             raise IntegrityError(f"artifact {art.id}: the blob of file {name!r} is missing; rebuild it") from None
         except OSError as exc:
-            raise StoreError(f"cannot read artifact {art.id[:12]}: {path}: {_os_reason(exc)}") from None
+            raise StoreError(f"cannot read artifact {art.id[:12]}: {path}: {os_reason(exc)}") from None
         if verify and hashlib.sha256(data).hexdigest() != art.files[name]["sha256"]:
             raise IntegrityError(f"artifact {art.id}: file {name!r} does not match its hash")
         return data
@@ -670,7 +566,7 @@ class Store:
             dst = directory / name
             if dst.is_dir():
                 raise UsageError(f"export destination {dst} is a directory")
-            with _storage(f"cannot export {name!r}", dst):
+            with storage_errors(f"cannot export {name!r}", dst):
                 dst.parent.mkdir(parents=True, exist_ok=True)
                 digest = hashlib.sha256()
                 try:
@@ -754,7 +650,7 @@ class Store:
             path = self._ref_path(alias)
             if path.is_dir():
                 raise IntegrityError(f"alias {alias!r}: {path} is a directory; run d2a artifacts verify --repair")
-            with _storage(f"cannot write alias {alias!r}", path):
+            with storage_errors(f"cannot write alias {alias!r}", path):
                 path.parent.mkdir(parents=True, exist_ok=True)
                 fh, tmp = self._temp_file(".ref")
                 with fh:
@@ -762,199 +658,25 @@ class Store:
                     fh.flush()
                     os.fsync(fh.fileno())
                 os.replace(tmp, path)
-                _fsync_dir(path.parent)
+                fsync_dir(path.parent)
         return art_id
 
     def untag(self, alias: str) -> None:
         path = self._ref_path(alias)
         if not path.is_file():
             raise NotFoundError(f"no alias {alias!r} in store {self.root}")
-        with self._lock(exclusive=False), _storage(f"cannot remove alias {alias!r}", path):
+        with self._lock(exclusive=False), storage_errors(f"cannot remove alias {alias!r}", path):
             path.unlink()
 
     # ----------------------------------------------------------------------------- upkeep
-    def _quarantine(self, path: Path, stamp: str) -> str:
-        """Move an unusable file out of the store's namespaces, keeping it for inspection."""
-        dest = self.root / "quarantine" / stamp / path.relative_to(self.root)
-        with _storage("cannot quarantine", path):
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(path, dest)
-        return str(dest)
-
     def verify(self, refs: Iterable[str] | None = None, repair: bool = False) -> list[VerifyProblem]:
         """Re-hash manifests and blobs; report every corrupted or incomplete artifact, alias and
-        run hold. `repair=True` moves what cannot be used (unreadable manifests and alias files,
-        corrupted blobs, aliases to missing artifacts) into `quarantine/`, so every command works
-        again and a rebuild writes fresh copies."""
-        problems: list[VerifyProblem] = []
-        if refs is not None:
-            ids = []
-            for ref in refs:
-                try:
-                    ids.append(self.resolve(ref))
-                except IntegrityError as exc:
-                    problems.append(VerifyProblem(None, str(exc), alias=ref))
-        else:
-            ids = self._all_ids()
-        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f"-{os.getpid()}"
-        lock = self._lock(exclusive=True) if repair else contextlib.nullcontext()
-        with lock:
-            checked_blobs: dict[str, str | None] = {}
-            for art_id in ids:
-                path = self._manifest_path(art_id)
-                try:
-                    manifest = self._parse_manifest(path.read_bytes(), art_id)
-                except (OSError, _BadFile) as exc:
-                    what = f"manifest unreadable ({_os_reason(exc)})" if isinstance(exc, OSError) else str(exc)
-                    problem = VerifyProblem(art_id, what, path=str(path))
-                    if repair and path.exists():
-                        problem.repaired = f"moved to {self._quarantine(path, stamp)}"
-                    problems.append(problem)
-                    continue
-                for name, info in sorted(manifest["files"].items()):
-                    digest = info["sha256"]
-                    blob = self._blob_path(digest)
-                    if digest not in checked_blobs:
-                        if not blob.is_file():
-                            checked_blobs[digest] = "missing"
-                        else:
-                            try:
-                                actual, size = sha256_file(blob)
-                                ok = actual == digest and size == info["size"]
-                            except OSError:
-                                ok = False
-                            checked_blobs[digest] = None if ok else "corrupted"
-                            if not ok and repair:
-                                self._quarantine(blob, stamp)
-                    if checked_blobs[digest]:
-                        problem = VerifyProblem(art_id, f"file {name!r}: blob {digest[:12]} {checked_blobs[digest]}",
-                                                path=str(blob))
-                        if repair and checked_blobs[digest] == "corrupted":
-                            problem.repaired = "blob quarantined; rebuild the artifact to restore it"
-                        problems.append(problem)
-                for input_id in manifest["inputs"]:
-                    if not self._manifest_path(input_id).is_file():
-                        problems.append(VerifyProblem(art_id, f"input {input_id[:12]} is missing; rebuild it"))
-            if refs is None:
-                good, bad = self._scan_refs()
-                for alias, target in good.items():
-                    if not self._manifest_path(target).is_file():
-                        bad.append(VerifyProblem(None, f"alias {alias!r} points to missing artifact {target[:12]}",
-                                                 alias=alias, path=str(self._ref_path(alias))))
-                holds, bad_holds = self.run_holds()
-                for key, held in holds.items():
-                    for art_id in held:
-                        if not self._manifest_path(art_id).is_file():
-                            problems.append(VerifyProblem(art_id, f"run {key[:12]} holds missing artifact {art_id[:12]}",
-                                                          path=str(self._runs / key / HOLDS_FILE)))
-                for problem in bad + bad_holds:
-                    if repair:
-                        problem.repaired = f"moved to {self._quarantine(Path(problem.path), stamp)}"
-                    problems.append(problem)
-        return problems
-
-    def _live_leases(self, remove_stale: bool) -> tuple[dict[str, list[str]], list[str]]:
-        """Ids held by live leases (by lease file), and the stale lease files (removed if asked)."""
-        live: dict[str, list[str]] = {}
-        stale: list[str] = []
-        if not self._leases.is_dir():
-            return live, stale
-        own = self._lease.path if self._lease is not None else None
-        for path in sorted(self._leases.glob("*.json")):
-            if path == own:
-                live[path.name] = list(self._lease.ids)
-                continue
-            try:
-                fd = os.open(path, os.O_RDONLY)
-            except OSError:
-                continue
-            try:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:  # its process is alive: everything it lists is a root
-                    data = json.loads(os.pread(fd, 1 << 24, 0) or b"{}")
-                    live[path.name] = [i for i in data.get("artifacts", []) if isinstance(i, str)]
-                else:
-                    stale.append(path.name)
-                    if remove_stale:
-                        path.unlink(missing_ok=True)
-            except (ValueError, AttributeError):
-                # a live lease mid-rewrite cannot be: rewrites happen under the store lock we hold
-                raise IntegrityError(f"lease {path} of a live process is unreadable") from None
-            finally:
-                os.close(fd)
-        return live, stale
+        run hold. `repair=True` moves what cannot be used into `quarantine/` (see upkeep.verify)."""
+        return upkeep.verify(self, refs, repair)
 
     def gc(self, dry_run: bool = False) -> GcReport:
-        """Remove artifacts and blobs that no root reaches (directly or as an input), and temp files.
-
-        Roots: aliases, live leases, run holds. If an alias file, a run holds file or a reachable
-        manifest cannot be read, gc removes nothing and names it (IntegrityError): it cannot know
-        what that root protects. `verify --repair` quarantines such files.
-        """
-        report = GcReport(dry_run=dry_run)
-        self._check_root()
-        if not self.root.is_dir():
-            return report
-        with self._lock(exclusive=True, write=not dry_run):
-            refs, bad_refs = self._scan_refs()
-            holds, bad_holds = self.run_holds()
-            leases, stale = self._live_leases(remove_stale=not dry_run)
-            report.stale_leases = stale
-            blockers = [p.what if p.alias else f"{p.path}: {p.what}" for p in bad_refs + bad_holds]
-            # an alias to a missing artifact is damage too (gc never collects an aliased artifact):
-            # a flipped id in it may be hiding the artifact it was meant to protect
-            blockers += [f"alias {a!r} points to missing artifact {t[:12]}" for a, t in refs.items()
-                         if not self._manifest_path(t).is_file()]
-            roots = list(refs.values())
-            for name, ids in leases.items():
-                report.held[f"lease {name}"] = ids
-                roots.extend(ids)
-            for key, ids in holds.items():
-                report.held[f"run {key}"] = ids
-                roots.extend(ids)
-            live: set[str] = set()
-            manifests: dict[str, dict[str, Any]] = {}
-            stack = [t for t in roots if self._manifest_path(t).is_file()]
-            while stack:
-                art_id = stack.pop()
-                if art_id in live:
-                    continue
-                live.add(art_id)
-                try:
-                    manifests[art_id] = self._parse_manifest(self._manifest_path(art_id).read_bytes(), art_id)
-                except (OSError, _BadFile) as exc:
-                    blockers.append(f"artifact {art_id}: {exc}")
-                    continue
-                stack.extend(i for i in manifests[art_id]["inputs"] if self._manifest_path(i).is_file())
-            if blockers:
-                raise IntegrityError(
-                    "gc removed nothing: it cannot tell what these protect:\n  " + "\n  ".join(blockers)
-                    + "\nrun d2a artifacts verify --repair to quarantine them, then gc again")
-            live_blobs = {f["sha256"] for m in manifests.values() for f in m["files"].values()}
-            for art_id in self._all_ids():
-                if art_id not in live:
-                    report.artifacts.append(art_id)
-            for blob in sorted(self._objects.glob("??/*")):
-                if blob.name not in live_blobs:
-                    report.blobs.append(blob.name)
-                    report.bytes_freed += blob.stat().st_size
-            # with the exclusive lock held no writer is alive, so every temp file is an orphan
-            temps = sorted(self._tmp.iterdir()) if self._tmp.is_dir() else []
-            report.temp_files = [t.name for t in temps]
-            report.bytes_freed += sum(t.stat().st_size for t in temps)
-            if not dry_run:
-                with _storage("gc cannot remove files"):
-                    for art_id in report.artifacts:
-                        self._manifest_path(art_id).unlink(missing_ok=True)
-                    for digest in report.blobs:
-                        self._blob_path(digest).unlink(missing_ok=True)
-                    for tmp in temps:
-                        if tmp.is_dir():
-                            shutil.rmtree(tmp)
-                        else:
-                            tmp.unlink(missing_ok=True)
-        return report
+        """Remove what no alias, live lease or run hold reaches, and temp files (see upkeep.gc)."""
+        return upkeep.gc(self, dry_run)
 
 
 class ArtifactWriter:
@@ -1026,7 +748,7 @@ class ArtifactWriter:
         writer = _HashingWriter(fh, tmp)
         try:
             yield writer  # type: ignore[misc]
-            with _storage("cannot write to the store", tmp):
+            with storage_errors("cannot write to the store", tmp):
                 fh.flush()
                 os.fsync(fh.fileno())
         except BaseException:
@@ -1034,7 +756,7 @@ class ArtifactWriter:
                 fh.close()
             tmp.unlink(missing_ok=True)
             raise
-        with _storage("cannot write to the store", tmp):
+        with storage_errors("cannot write to the store", tmp):
             fh.close()
         digest = writer.hexdigest()
         if digest in self._blobs:
