@@ -172,6 +172,8 @@ class Store:
         `write=False` (gc --dry-run) also works on a read-only store: nothing can write there.
         """
         if self._lock_depth:
+            # flock cannot upgrade in place, and gc or repair inside a write is a programming error
+            assert not exclusive, "exclusive store lock requested while this Store holds it shared"
             self._lock_depth += 1
             try:
                 yield
