@@ -91,12 +91,21 @@ def test_gc_removes_nothing_when_a_root_is_unreadable_and_repair_unblocks_it(sto
     assert sorted(store.gc().artifacts) == sorted([orphan.id, held.id])
 
 
-def test_tag_refuses_an_artifact_gc_collected_after_it_was_resolved(store_dir):
+def test_tag_checks_under_the_lock_that_the_artifact_still_exists(store_dir, monkeypatch):
+    """make-track beside gc once left a dangling track alias: gc ran between lookup and tag."""
     store = Store(store_dir)
     art = store.put("track", {"t": b"x"})
-    _manifest(store_dir, art.id).unlink()
+    real_get = Store.get
+
+    def get_then_collected(self, ref):
+        found = real_get(self, ref)
+        _manifest(store_dir, art.id).unlink()  # what a gc in another process did right after the lookup
+        return found
+
+    monkeypatch.setattr(Store, "get", get_then_collected)
     with pytest.raises(NotFoundError):
         store.tag(art.id, "track/x")
+    monkeypatch.undo()
     assert store.refs() == {}
 
 
