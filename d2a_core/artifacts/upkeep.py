@@ -8,7 +8,6 @@ root protects. `verify --repair` moves such files to `quarantine/` so that gc wo
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shutil
 import time
@@ -83,8 +82,8 @@ def verify(store: "Store", refs: Iterable[str] | None = None, repair: bool = Fal
     else:
         ids = store._all_ids()
     stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f"-{os.getpid()}"
-    lock = store._lock(exclusive=True) if repair else contextlib.nullcontext()
-    with lock:
+    # shared without --repair: a concurrent gc cannot remove a manifest between listing and reading
+    with store._lock(exclusive=repair, write=repair):
         checked_blobs: dict[str, str | None] = {}
         for art_id in ids:
             path = store._manifest_path(art_id)
