@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
         else:
             report_error(exc.format_message(), exc.exit_code, "UsageError")
         sys.exit(exc.exit_code)
-    except typer.Abort:
+    except (typer.Abort, KeyboardInterrupt):  # Ctrl-C: the store is consistent (writes are atomic)
         report_error("aborted", 130, "Aborted")
         sys.exit(130)
     except D2AError as exc:
