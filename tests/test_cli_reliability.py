@@ -82,8 +82,6 @@ def test_gc_while_train_humans_runs_keeps_its_checkpoints(store):
     assert Store(store).verify() == []
 
 
-@pytest.mark.xfail(reason="needs d2a_core/training/humans.py to record its run state's artifacts with "
-                          "Store.hold_run (docs/reliability.md); passes once wired", strict=False)
 def test_a_killed_run_state_survives_gc_and_resumes(store):
     args = ["train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--set", "humans.checkpoints=3",
             "--json"]

@@ -128,7 +128,16 @@ def train_population(
     device: str = "cpu",
     progress: ProgressFn | None = None,
 ) -> dict[str, Any]:
-    """Train (or resume, or look up) one intent's population; returns its JSON summary."""
+    """Train (or resume, or look up) one intent's population; returns its JSON summary.
+
+    Everything the run loads and stores is held against `d2a artifacts gc` while it runs (a store
+    lease), and its saved state's checkpoints after it dies (run holds), until it finishes."""
+    with store.lease():
+        return _train_population(store, track_ref, intent, resolved, seed, device, progress)
+
+
+def _train_population(store: Store, track_ref: str, intent: str, resolved: ResolvedConfig, seed: int,
+                      device: str, progress: ProgressFn | None) -> dict[str, Any]:
     if intent not in INTENTS:
         raise UsageError(f"unknown intent {intent!r}; choose from {', '.join(INTENTS)}")
     cfg = resolved.config
@@ -155,7 +164,7 @@ def train_population(
 
     envs = [make_env() for _ in range(hc.num_envs)]
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)
-    run_dir = store.root / "runs" / key
+    run_dir = store.run_dir(key)
     run_dir.mkdir(parents=True, exist_ok=True)
     state_path = run_dir / "state.pt"
     env_steps, checkpoints, curve, resumed_from = 0, [], [], None
@@ -163,6 +172,11 @@ def train_population(
         saved = torch.load(state_path, map_location=device, weights_only=False)
         agent.load_state_dict(saved["agent"])
         env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        try:  # the state's checkpoints must still exist (run holds keep them from gc)
+            store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
+        except NotFoundError as exc:
+            raise TrainingError(f"cannot resume {intent} from {state_path}: {exc}; delete {run_dir} "
+                                "to train from the start") from None
         resumed_from = env_steps
     # resets after a resume use fresh seeds so the continued run does not replay old episodes
     collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
@@ -194,6 +208,8 @@ def train_population(
                 pending.pop(0)
                 checkpoints.append(_store_checkpoint(store, agent, bundle, make_env, intent, env_steps, hc,
                                                      config_record, seed, tags))
+                # hold before the state names the new checkpoint, so the holds always cover it
+                store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
                 _save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
                               "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve}, state_path)
     except TrainingError as exc:
@@ -219,6 +235,9 @@ def train_population(
     population = writer.artifact
     store.tag(population.id, f"humans/{bundle.track.name}/{intent}")
     store.tag(expert["id"], f"humans/{bundle.track.name}/{intent}/expert")
+    # finished: the aliases now keep everything; the resumable state (with its replay) goes
+    state_path.unlink(missing_ok=True)
+    store.release_run(key)
     return dict(result, id=population.id, cached=False)
 
 
