@@ -30,7 +30,8 @@ from d2a_core.objectives.rewards import INTENTS
 METRIC_NAMES = ("progress_m", "return", *(f"return_{i}" for i in INTENTS), "collision", "collision_car",
                 "collision_barrier", "off_track", "finished", "finished_ahead", "finished_never_ahead", "mean_speed_m_s", "overtakes", "ahead_at_end",
                 "share_left", "held_left", "held_right", "steps", "intervention")
-# how far behind the opponent a car may be and still count as holding its side (the grid gap is 15 m)
+# how far behind the opponent a car may be and still count as holding its side (the grid gap is
+# 15 m); the same distance as the reward's default `side_max_behind_m`
 HOLD_BEHIND_M = 30.0
 
 

@@ -11,6 +11,8 @@ History:
 - 2: 2026-12-01: crash forfeit bounded by the pass window and moved into the intent terms;
   right mirrors left; a time-left input; a finished opponent shown far ahead; a finish off the
   road is no finish; actor(sg(s)) in imagination; the expert chosen by `evaluation.criteria`.
+- 3: 2026-12-01: the left/right side term only within 30 m behind the opponent (changes left and
+  right only; pass and stay train exactly as under 2).
 """
 
-TRAINING_CODE_VERSION = 2
+TRAINING_CODE_VERSION = 3

@@ -110,8 +110,9 @@ def test_crash_forfeit_hand_computed(ds, remaining, expected_f):
     t = reward_terms(q(ds=ds, ds_prev=ds, collision=True, remaining_m=remaining), CFG)
     assert t.forfeit_m == pytest.approx(expected_f)
     assert t.pass_ == pytest.approx(10.0 * expected_f)
-    assert t.left - (1.5 + 0.3) == pytest.approx(1.0 * expected_f)  # de = 1.5
-    assert t.right - (-1.5 + 0.3) == pytest.approx(1.0 * expected_f)
+    racing_it = ds >= -CFG.side_max_behind_m  # the side bias is paid only near the opponent
+    assert t.left - (1.5 + 0.3) * racing_it == pytest.approx(1.0 * expected_f)  # de = 1.5
+    assert t.right - (-1.5 + 0.3) * racing_it == pytest.approx(1.0 * expected_f)
     assert t.stay == pytest.approx(2.0)  # stay: progress only, no forfeit
     off = reward_terms(q(ds=ds, ds_prev=ds, off_track=True, remaining_m=remaining), CFG)
     assert off.pass_ == pytest.approx(t.pass_) and off.bounds == CFG.bounds
@@ -136,3 +137,16 @@ def test_the_forfeit_can_be_turned_off():
     literal = RewardConfig(forfeit=False)
     t = reward_terms(q(ds=0.0, ds_prev=0.0, collision=True, remaining_m=2_000.0), literal)
     assert t.forfeit_m == 0.0 and t.pass_ == 0.0 and t.human("pass") == CFG.collision
+
+
+def test_side_term_only_while_racing_the_opponent_not_hanging_back():
+    """A car more than side_max_behind_m behind, on its side, earns no side bias: only the
+    passing term, which charges it for dropping back; within the range, the usual bias."""
+    near = reward_terms(q(ds=-29.0, ds_prev=-28.0, de=3.0), CFG)
+    assert near.left == pytest.approx(-1.0 + 3.3) and near.right == pytest.approx(-1.0 - 2.7)
+    far = reward_terms(q(ds=-31.0, ds_prev=-30.0, de=3.0), CFG)
+    assert far.left == pytest.approx(-1.0) and far.right == pytest.approx(-1.0)
+    ahead = reward_terms(q(ds=120.0, ds_prev=119.0, de=3.0), CFG)
+    assert ahead.left == pytest.approx(1.0 + 3.3)
+    literal = RewardConfig(side_max_behind_m=None)
+    assert reward_terms(q(ds=-31.0, ds_prev=-30.0, de=3.0), literal).left == pytest.approx(-1.0 + 3.3)

@@ -187,7 +187,7 @@ def test_reward_is_task_plus_intent_term_from_info(straight, intent):
         d_ds = info["ds"] - prev["ds"]
         passing = d_ds if (abs(info["ds"]) <= cfg.pass_window_m or abs(prev["ds"]) <= cfg.pass_window_m) else 0.0
         staying = d_ds if (abs(info["ds"]) <= cfg.stay_window_m or abs(prev["ds"]) <= cfg.stay_window_m) else 0.0
-        racing = info["opponent_racing"]
+        racing = info["opponent_racing"] and info["ds"] >= -cfg.side_max_behind_m
         forfeit = expected_forfeit(info)
         expected = {
             "pass": cfg.c_pass * (passing + forfeit),
@@ -199,7 +199,10 @@ def test_reward_is_task_plus_intent_term_from_info(straight, intent):
 
 
 def test_a_parked_left_driver_stops_earning_its_side_bias_when_the_opponent_finishes(straight):
-    env = RaceEnv(straight, intent="left", env_config=EnvConfig(time_limit_s=40.0))
+    # the side bias regardless of the gap (side_max_behind_m has its own test), so only the
+    # opponent's finish ends it
+    env = RaceEnv(straight, intent="left", env_config=EnvConfig(time_limit_s=40.0),
+                  reward_config=RewardConfig(side_max_behind_m=None))
     obs, info = env.reset(seed=0, options={"ego_e": 5.0})  # parked well left of the opponent
     racing, finished = [], []
     window = RewardConfig().pass_window_m
