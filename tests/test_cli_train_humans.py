@@ -47,6 +47,8 @@ def test_train_humans_population_and_idempotence(cli, track_store):
         assert pop["expert_meets_intent"] == meets_intent(pop["intent"], store.read_json(pop["expert"], "eval.json")["metrics"])
         assert pop["expert_rule"] == EXPERT_RULE and pop["training_code_version"] == TRAINING_CODE_VERSION
         assert all(c["meets_intent"] == meets_intent(pop["intent"], c["metrics"]) for c in pop["checkpoints"])
+        expert = next(c for c in pop["checkpoints"] if c["id"] == pop["expert"])
+        assert expert["performance"] == 1.0 and all(c["performance"] >= 0.0 for c in pop["checkpoints"])
         assert pop["runtime"]["device"] == "cpu" and pop["runtime"]["cpu_kernels"]
         for c in pop["checkpoints"]:
             m = c["metrics"]

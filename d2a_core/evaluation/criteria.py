@@ -14,6 +14,12 @@ The expert. The paper takes the last checkpoint; a last checkpoint that parks or
 than an earlier one is no expert. Rule: among the checkpoints that meet the criterion, the one
 with the highest mean return under its own objective (ties: the later one); when none meets it,
 the highest-return checkpoint, and the population says `expert_meets_intent: false`.
+
+Performance. A checkpoint's performance is its mean evaluation return under its own objective,
+as a fraction of the way from the population's weakest checkpoint (0) to the expert (1):
+`(R - R_min) / (R_expert - R_min)`. Returns are often negative (a crash pays the forfeit), so a
+plain ratio `R / R_expert` has no meaning; this one does, and it is what "x % of the expert's
+performance" means in the evaluation protocol (imperfect humans below ~75 %).
 """
 
 from __future__ import annotations
@@ -27,7 +33,8 @@ FINISH_RATE = 0.8
 HOLD_SHARE = 0.7
 EXPERT_RULE = "highest mean return among checkpoints meeting the intent criterion (else highest return)"
 
-__all__ = ["EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent"]
+__all__ = ["EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
+           "performance_fractions"]
 
 
 def criterion_value(intent: str, metrics: Mapping[str, float]) -> float:
@@ -57,3 +64,12 @@ def choose_expert(intent: str, checkpoints: Sequence[Mapping[str, Any]]) -> int:
     candidates = meeting or list(range(len(checkpoints)))
     # max over (return, index): the highest return, and the later checkpoint on a tie
     return max(candidates, key=lambda i: (float(checkpoints[i]["metrics"]["return"]), i))
+
+
+def performance_fractions(checkpoints: Sequence[Mapping[str, Any]], expert: int) -> list[float]:
+    """Each checkpoint's performance (module docstring): 0 the weakest, 1 the expert."""
+    returns = [float(c["metrics"]["return"]) for c in checkpoints]
+    low, top = min(returns), returns[expert]
+    if top <= low:  # the expert is (one of) the weakest: nothing to scale by
+        return [1.0 if r >= top else 0.0 for r in returns]
+    return [round((r - low) / (top - low), 6) for r in returns]

@@ -36,7 +36,8 @@ from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.artifacts import Store, canonical_json
 from d2a_core.config import ResolvedConfig
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
-from d2a_core.evaluation.criteria import EXPERT_RULE, choose_expert, criterion_value, meets_intent
+from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_value, meets_intent,
+                                          performance_fractions)
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.objectives.rewards import INTENTS
 from d2a_core.pipelines.make_track import opponents_of
@@ -220,7 +221,10 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
         for env in envs:
             env.close()
 
-    expert = checkpoints[choose_expert(intent, checkpoints)]
+    expert_index = choose_expert(intent, checkpoints)
+    expert = checkpoints[expert_index]
+    for checkpoint, fraction in zip(checkpoints, performance_fractions(checkpoints, expert_index)):
+        checkpoint["performance"] = fraction
     # How the run executed: the compiled CPU kernels change float rounding, not the method.
     runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
     result = {"intent": intent, "track": bundle.track.name, "track_id": bundle.track_id, "seed": seed,

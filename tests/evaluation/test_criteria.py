@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from d2a_core.evaluation.criteria import choose_expert, criterion_value, meets_intent
+from d2a_core.evaluation.criteria import choose_expert, criterion_value, meets_intent, performance_fractions
 
 
 def metrics(ret=0.0, finished=1.0, ahead=0.0, never=0.0, held_left=0.0, held_right=0.0):
@@ -44,3 +44,12 @@ def test_a_left_driver_that_parks_on_its_side_is_not_the_expert():
     passing = metrics(ret=250, finished=1.0, held_right=0.9)
     parked = metrics(ret=320, finished=0.2, held_right=0.3)
     assert choose_expert("right", [{"metrics": passing}, {"metrics": parked}]) == 0
+
+
+def test_performance_runs_from_the_weakest_checkpoint_to_the_expert():
+    cps = [{"metrics": metrics(ret=r)} for r in (-8000.0, -4000.0, 200.0, 400.0, -7000.0)]
+    perf = performance_fractions(cps, expert=3)
+    assert perf == pytest.approx([0.0, 4000 / 8400, 8200 / 8400, 1.0, 1000 / 8400], abs=1e-6)
+    # a later checkpoint may beat the expert's return when it failed the intent: above 1
+    assert performance_fractions(cps, expert=2)[3] > 1.0
+    assert performance_fractions([{"metrics": metrics(ret=5.0)}], expert=0) == [1.0]
