@@ -16,7 +16,7 @@ from d2a_core.sim.race_env import EnvConfig
 from d2a_core.sim.vehicle import VehicleConfig
 from d2a_core.sim.world import WorldConfig
 from d2a_core.tracks.config import TracksConfig
-from d2a_core.training.config import HumansConfig
+from d2a_core.training.config import AssistantConfig, HumansConfig
 from d2a_core.agents.dreamer.config import DreamerConfig
 
 
@@ -52,3 +52,4 @@ class Config(Section):
     driver: DriverConfig = DriverConfig()
     dreamer: DreamerConfig = DreamerConfig()
     humans: HumansConfig = HumansConfig()
+    assistant: AssistantConfig = AssistantConfig()

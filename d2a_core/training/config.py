@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from d2a_core.config.section import Section
+from d2a_core.objectives.assistant import AssistantRewardConfig
 
 
 class HumansConfig(Section):
@@ -17,3 +18,11 @@ class HumansConfig(Section):
     eval_envs: int = Field(4, ge=1, le=64)
     log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")
+
+
+class AssistantConfig(Section):
+    """The assistant run (paper Algorithm 1, second phase): its reward and intent head. A method
+    (`d2a_core.training.methods`) sets the reward's alpha_r and alpha_a and adds the intent head."""
+
+    reward: AssistantRewardConfig = AssistantRewardConfig()
+    intent_scale: float = Field(1.0, ge=0, description="weight of the intent head's NLL in the world-model loss")

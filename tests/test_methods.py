@@ -1,0 +1,101 @@
+"""The method registry: the paper's rows, lookups and their errors, lazy agents, config patches."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from d2a_core.config.schema import Config
+from d2a_core.errors import UsageError
+from d2a_core.training.methods import METHODS, Method, get_method, method_names, register_method
+
+PAIR = ("pass", "stay")
+
+
+def test_the_papers_rows():
+    rows = {name: (m.intent_head, m.alpha_r, m.alpha_a, m.implemented) for name, m in METHODS.items()}
+    assert rows == {
+        "dream2assist": (True, 1.0, 0.0, True),
+        "dream2assist+a": (True, 1.0, 1.0, True),
+        "dream2assist+a-r": (True, 0.0, 1.0, True),
+        "dreamer": (False, 0.0, 0.0, True),
+        "no-rssm": (True, 1.0, 0.0, False),
+        "dreamer-ail": (False, None, None, False),
+    }
+    assert get_method("dream2assist").labels == ("intent",) and get_method("dreamer").labels == ()
+    assert get_method("dream2assist+a-r").uses_experts and not get_method("dreamer").uses_experts
+    assert method_names(implemented_only=True) == ["dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer"]
+
+
+def test_unknown_and_unimplemented_names_are_usage_errors():
+    with pytest.raises(UsageError, match="unknown method 'dream2asist'.*dream2assist, dream2assist\\+a.*dreamer-ail"):
+        get_method("dream2asist")
+    with pytest.raises(UsageError, match="'no-rssm' is registered but not implemented.*baselines.no_rssm:NoRSSMAgent"):
+        get_method("no-rssm")
+    with pytest.raises(UsageError, match="dreamer-ail"):
+        METHODS["dreamer-ail"].agent_class()
+
+
+def test_agents_load_lazily_and_reading_the_registry_imports_no_torch():
+    from d2a_core.agents.dreamer.agent import DreamerAgent
+
+    assert all(get_method(name).agent_class() is DreamerAgent for name in method_names(implemented_only=True))
+    code = ("import sys, d2a_core.training.methods as m; m.get_method('dreamer'); "
+            "assert not [k for k in sys.modules if k.split('.')[0] == 'torch'], 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_run_key_sections_exist_in_the_config():
+    fields = set(Config.model_fields)
+    for name in method_names(implemented_only=True):
+        assert set(get_method(name).config_sections) <= fields, name
+        assert {"assistant", "reward", "env"} <= set(get_method(name).config_sections)
+
+
+def test_variants_differ_exactly_in_their_row():
+    base = Config()
+    configured = {name: get_method(name).configure(base, PAIR) for name in method_names(implemented_only=True)}
+    for name, config in configured.items():
+        method = get_method(name)
+        assert (config.assistant.reward.alpha_r, config.assistant.reward.alpha_a) == (method.alpha_r, method.alpha_a)
+        heads = config.dreamer.extra_heads
+        if method.intent_head:
+            assert [(h.name, h.kind, h.weight, h.options) for h in heads] == [
+                ("intent", "intent", base.assistant.intent_scale, {"field": "intent", "intents": ["pass", "stay"]})
+            ]
+        else:
+            assert heads == []
+        # Nothing else moves: with the row undone the config is the base config.
+        undone = config.model_copy(update={
+            "assistant": base.assistant,
+            "dreamer": config.dreamer.model_copy(update={"extra_heads": []}),
+        })
+        assert undone.model_dump() == base.model_dump()
+    # Every pair of methods records different run-key sections.
+    records = {
+        name: repr(sorted(config.model_dump(include=set(get_method(name).config_sections)).items()))
+        for name, config in configured.items()
+    }
+    assert len(set(records.values())) == len(records)
+    assert base.assistant.reward.alpha_a == 0.0 and base.dreamer.extra_heads == []  # the base is untouched
+
+
+def test_configure_uses_the_intent_scale_and_refuses_bad_pairs():
+    base = Config()
+    scaled = base.model_copy(update={"assistant": base.assistant.model_copy(update={"intent_scale": 0.25})})
+    assert get_method("dream2assist").configure(scaled, ("left", "right")).dreamer.extra_heads[0].weight == 0.25
+    with pytest.raises(UsageError, match="two distinct intents"):
+        get_method("dream2assist").configure(base, ("pass",))
+    twice = get_method("dream2assist").configure(base, PAIR)
+    with pytest.raises(UsageError, match="already has a head named 'intent'"):
+        get_method("dream2assist").configure(twice, PAIR)
+
+
+def test_registering_twice_or_without_entry_point_is_refused():
+    with pytest.raises(ValueError, match="already registered"):
+        register_method(Method("dreamer", True, 1.0, 1.0, ("env",), "x:Y"))
+    with pytest.raises(ValueError, match="module:Class"):
+        register_method(Method("test-bad-entry", False, 0.0, 0.0, ("env",), "no_colon"))
+    assert "test-bad-entry" not in METHODS
