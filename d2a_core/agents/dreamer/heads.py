@@ -18,19 +18,21 @@ on a field of the replayed batch. To add one without touching the world model:
 
 then list it in the config: `DreamerConfig(extra_heads=[HeadConfig(name="intent",
 kind="my_kind", weight=1.0, options={"field": "intent"})])`. The head's field must be present
-in every transition given to `DreamerAgent.observe` (the replay stores any extra field).
+in every transition given to `DreamerAgent.observe` (the replay stores any extra field). To log
+scalars beside the loss (e.g. an accuracy, as `wm/<name>_<key>`), also override
+`loss_and_metrics`, as `CategoricalHead` does.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import TypeVar
 
 import torch
 from torch import Tensor, nn
 
-from d2a_core.errors import ConfigError
+from d2a_core.errors import ConfigError, TrainingError
 
 from .config import DreamerConfig, HeadConfig
 from .distributions import TwoHot
@@ -56,6 +58,11 @@ class WorldModelHead(nn.Module, ABC):
     @abstractmethod
     def predict(self, latent: Latent) -> Tensor:
         """Run-time prediction for states of any leading shape."""
+
+    def loss_and_metrics(self, latent: Latent, batch: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        """The per-step loss and scalar metrics (logged as `wm/<head name>_<key>`, e.g. an
+        accuracy). The default reports none; override to report some without a second forward."""
+        return self.loss(latent, batch), {}
 
 
 def latent_mlp(config: DreamerConfig, out_size: int, zero_output: bool = False) -> LatentMLP:
@@ -108,15 +115,43 @@ class CategoricalHead(WorldModelHead):
         self.net = latent_mlp(config, classes)
 
     def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
+        return self.loss_and_metrics(latent, batch)[0]
+
+    def loss_and_metrics(self, latent: Latent, batch: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        """NLL per step, and the accuracy of the most probable class over the known labels."""
         label = batch[self.field].long()
+        if bool((label >= self.classes).any()):
+            raise TrainingError(f"head field {self.field!r} has a label >= its {self.classes} classes")
         known = label >= 0
         log_probs = torch.log_softmax(self.net(latent).float(), -1)
         nll = -log_probs.gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
-        return torch.where(known, nll, torch.zeros_like(nll))
+        with torch.no_grad():
+            correct = (log_probs.argmax(-1) == label) & known
+            accuracy = correct.float().sum() / known.float().sum().clamp(min=1.0)
+        return torch.where(known, nll, torch.zeros_like(nll)), {"accuracy": accuracy}
 
     def predict(self, latent: Latent) -> Tensor:
         """Class probabilities (..., classes)."""
         return torch.softmax(self.net(latent).float(), -1)
+
+
+@register_head("intent")
+class IntentHead(CategoricalHead):
+    """The assistant's intent head p(y_hat | s) over the intents of a pair (Dream2Assist's
+    "intent predictor"), trained by negative log-likelihood on the index of the true intent of
+    the episode's human in `intents` (the replay's `field`; < 0: unknown, left out).
+
+    The paper predicts the symlog two-hot code of the integer label; a categorical over the
+    pair's intents is the same prediction without an ordering between intents that do not have
+    one, and its probabilities are the classifier's output that F1 and y_hat read directly.
+    `predict` gives the probabilities (..., len(intents)); y_hat is their argmax."""
+
+    def __init__(self, config: DreamerConfig, intents: Sequence[str], field: str = "intent") -> None:
+        intents = tuple(intents)
+        if len(intents) < 2 or len(set(intents)) != len(intents) or not all(isinstance(i, str) for i in intents):
+            raise TypeError(f"intents must be at least two distinct names, got {list(intents)}")
+        super().__init__(config, field=field, classes=len(intents))
+        self.intents = intents
 
 
 @register_head("twohot")

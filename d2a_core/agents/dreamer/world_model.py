@@ -121,9 +121,10 @@ class WorldModel(nn.Module):
             **self._terminal_fit(reward_logits, continue_logits, batch),
         }
         for name, head in self.extra_heads.items():
-            head_loss = self._head_loss(name, head, latent, batch)
+            head_loss, head_metrics = self._head_loss(name, head, latent, batch)
             per_step = per_step + self.head_weights[name] * head_loss
             metrics[f"wm/{name}_loss"] = head_loss.mean()
+            metrics.update({f"wm/{name}_{key}": value for key, value in head_metrics.items()})
         loss = per_step.mean()
         metrics["wm/loss"] = loss
         return WorldModelOutput(
@@ -144,8 +145,11 @@ class WorldModel(nn.Module):
         return {"wm/terminal_steps": count, "wm/terminal_continue": cont, "wm/terminal_reward_error": error}
 
     @staticmethod
-    def _head_loss(name: str, head: WorldModelHead, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
+    def _head_loss(
+        name: str, head: WorldModelHead, latent: Latent, batch: Mapping[str, Tensor]
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         missing = [field for field in head.fields if field not in batch]
         if missing:
             raise TrainingError(f"extra head {name!r} needs batch fields {missing}; observe() must provide them")
-        return head.loss(latent, batch).float()
+        loss, metrics = head.loss_and_metrics(latent, batch)
+        return loss.float(), metrics

@@ -1,0 +1,91 @@
+"""The assistant's intent head p(y_hat | s): built from the method registry's config patch,
+trained by NLL on the replayed label, and read while acting."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from d2a_core.agents.dreamer import DreamerAgent, DreamerConfig, HeadConfig
+from d2a_core.config import load
+from d2a_core.errors import ConfigError, TrainingError
+from d2a_core.training.methods import get_method
+
+OBS, ENVS, EPISODE = 5, 4, 20
+
+
+def _smoke_agent(**overrides) -> DreamerAgent:
+    """The smoke preset's agent with dream2assist's intent head over (pass, stay)."""
+    config = get_method("dream2assist").configure(load("smoke").config, ("pass", "stay"))
+    dreamer = config.dreamer.model_copy(update={"prefill_steps": 0, **overrides})
+    return DreamerAgent(gym.spaces.Box(-np.inf, np.inf, (OBS,), np.float32),
+                        gym.spaces.Box(-1.0, 1.0, (2,), np.float32), DreamerConfig(**dreamer.model_dump()), seed=0)
+
+
+class _LabelledEpisodes:
+    """ENVS streams of EPISODE-step episodes; each episode's intent y is drawn at its start and
+    shows in every observation as the sign of its first component (the rest is noise)."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.t = 0
+        self.intent = self.rng.integers(0, 2, ENVS)
+
+    def step(self) -> dict[str, np.ndarray]:
+        first = self.t % EPISODE == 0
+        if first:
+            self.intent = self.rng.integers(0, 2, ENVS)
+        obs = self.rng.normal(size=(ENVS, OBS)).astype(np.float32)
+        obs[:, 0] = (2 * self.intent - 1) * (0.3 + np.abs(obs[:, 0]))
+        self.t += 1
+        return {"obs": obs, "reward": self.rng.normal(size=ENVS).astype(np.float32),
+                "is_first": np.full(ENVS, first), "is_terminal": np.zeros(ENVS, bool)}
+
+
+def test_intent_head_learns_the_label_well_above_chance():
+    torch.manual_seed(0)
+    # A learning rate 10x the smoke preset's, so that a few hundred updates suffice.
+    agent = _smoke_agent(model_lr=1e-3)
+    assert list(agent.world_model.extra_heads) == ["intent"]
+    assert agent.world_model.extra_heads["intent"].intents == ("pass", "stay")
+    episodes = _LabelledEpisodes(seed=1)
+    rng = np.random.default_rng(2)
+    for _ in range(10 * EPISODE):
+        step = episodes.step()
+        # The label reaches the agent only as a replay field, never in the observation.
+        agent.observe({**step, "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32),
+                       "intent": episodes.intent.copy()})
+    metrics = [agent.train_step() for _ in range(300)]
+    losses = np.array([m["wm/intent_loss"] for m in metrics])
+    accuracy = np.array([m["wm/intent_accuracy"] for m in metrics])
+    assert losses[:10].mean() > 0.6  # about log 2 at the start
+    assert losses[-30:].mean() < 0.35 and losses[-30:].mean() < 0.5 * losses[:10].mean()
+    assert accuracy[-30:].mean() > 0.85  # chance is 0.5
+
+    # While acting: y_hat from the filtered state along fresh episodes.
+    fresh, state, hits = _LabelledEpisodes(seed=7), None, []
+    for _ in range(EPISODE):
+        step = fresh.step()
+        _, state = agent.policy(step, state, explore=False)
+        probs = agent.predict(state)["intent"]
+        assert probs.shape == (ENVS, 2) and torch.allclose(probs.sum(-1), torch.ones(ENVS))
+        hits.append(probs.argmax(-1).numpy() == fresh.intent)
+    assert np.mean(hits) > 0.8
+
+
+def test_intent_head_options_and_labels_are_checked(make_agent, fill_random):
+    with pytest.raises(ConfigError, match="bad options"):
+        make_agent(extra_heads=[HeadConfig(name="intent", kind="intent", options={"intents": ["pass"]})])
+    with pytest.raises(ConfigError, match="bad options"):
+        make_agent(extra_heads=[HeadConfig(name="intent", kind="intent", options={"intents": ["pass", "pass"]})])
+    agent = make_agent(extra_heads=[HeadConfig(name="intent", kind="intent", options={"intents": ["left", "right"]})])
+    fill_random(agent, 20, intent=lambda t: np.full(2, 2))  # index 2 is not an intent of the pair
+    with pytest.raises(TrainingError, match="label >= its 2 classes"):
+        agent.train_step()
+    # Unknown labels (< 0) are left out of the loss and the accuracy.
+    agent = make_agent(extra_heads=[HeadConfig(name="intent", kind="intent", options={"intents": ["left", "right"]})])
+    fill_random(agent, 20, intent=lambda t: np.full(2, -1))
+    metrics = agent.train_step()
+    assert metrics["wm/intent_loss"] == 0.0 and metrics["wm/intent_accuracy"] == 0.0
