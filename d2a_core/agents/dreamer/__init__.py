@@ -11,6 +11,8 @@ _EXPORTS = {
     "PolicyState": ".agent",
     "DreamerConfig": ".config",
     "HeadConfig": ".config",
+    "ExpertFilter": ".expert",
+    "ExpertPrediction": ".expert",
     "HEAD_KINDS": ".heads",
     "WorldModelHead": ".heads",
     "register_head": ".heads",

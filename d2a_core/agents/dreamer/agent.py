@@ -109,11 +109,17 @@ class DreamerAgent:
 
     @torch.no_grad()
     def policy(
-        self, obs_batch: Mapping[str, np.ndarray], state: PolicyState | None = None, explore: bool = True
+        self,
+        obs_batch: Mapping[str, np.ndarray],
+        state: PolicyState | None = None,
+        explore: bool = True,
+        generator: torch.Generator | None = None,
     ) -> tuple[np.ndarray, PolicyState]:
         """Actions for a batch of environments. `obs_batch["obs"]` is (N, *obs_shape);
         `obs_batch["is_first"]` (N,) resets those environments' state (all are reset when
-        `state` is None). Samples the actor when `explore`, else takes its mode."""
+        `state` is None). Samples the actor when `explore`, else takes its mode. Latent and
+        action samples draw from `generator` (default: the agent's own acting generator)."""
+        generator = self.act_generator if generator is None else generator
         obs = self._tensor(obs_batch["obs"], torch.float32).reshape(-1, self.obs_size)
         n = obs.shape[0]
         if state is None:
@@ -130,10 +136,10 @@ class DreamerAgent:
         with self._autocast():
             h = rssm.step(state.latent, state.action)
             logits = rssm.posterior_logits(h, self.world_model.embed(obs))
-            feat = rssm.sample(h.float(), logits, rssm.uniform((n,), self.act_generator, self.device))
+            feat = rssm.sample(h.float(), logits, rssm.uniform((n,), generator, self.device))
             actor = self.behavior.actor
             if explore:
-                noise = actor.noise((n,), self.act_generator, self.device)
+                noise = actor.noise((n,), generator, self.device)
                 action, _ = actor.sample(feat, noise)
             else:
                 action = actor.mode(feat)
