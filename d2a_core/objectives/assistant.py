@@ -52,9 +52,12 @@ class AssistantRewardConfig(Section):
 
     w_interv: float = Field(1.0, ge=0, description="weight of the intervention norm ||a_A||_2 (the paper's: 1)")
     alpha_r: float = Field(1.0, ge=0, description="weight of the expert world model's reward r_hat*(y_hat)")
-    alpha_a: float = Field(0.0, ge=0, description="weight of the distance ||a_H + a_A - a*(y_hat)||_2 to the expert's action")
+    alpha_a: float = Field(
+        0.0, ge=0, description="weight of the distance ||a_H + a_A - a*(y_hat)||_2 to the expert's action"
+    )
     expert_action_penalty: bool = Field(
-        True, description="the action term is a penalty on the distance to the expert; false: the paper's printed +alpha_a"
+        True,
+        description="the action term is a penalty on the distance to the expert; false: the paper's printed +alpha_a",
     )
     clip_blend: bool = Field(
         True, description="measure the distance from clip(a_H + a_A, -1, 1), the executed action; false: the raw sum"

@@ -145,7 +145,8 @@ for _method in (
            description="DreamerV3 on task and intervention reward only (FCP-style partner training)"),
     Method("no-rssm", True, 1.0, 0.0, (*_COMMON_SECTIONS, "no_rssm"),
            "d2a_core.agents.baselines.no_rssm:NoRSSMAgent", implemented=False,
-           description="no world model: 16-frame observation window, model-free actor-critic, auxiliary intent classifier"),
+           description="no world model: a 16-frame observation window, model-free actor-critic, "
+                       "an auxiliary intent classifier"),
     Method("dreamer-ail", False, None, None, (*_COMMON_SECTIONS, "dreamer_ail"),
            "d2a_core.agents.baselines.dreamer_ail:DreamerAILAgent", implemented=False,
            description="behaviour-transformer prior plus an adversarial-imitation residual assistant (BeTAIL-style)"),
