@@ -166,6 +166,27 @@ def test_a_flip_anywhere_in_a_manifest_is_refused_on_read(store_dir):
     assert [p.artifact for p in Store(store_dir).verify()] == [art.id]
 
 
+def test_every_bit_of_a_manifest_is_covered(store_dir):
+    """Each single-bit flip, at every byte, is refused: also in the name of the checksum field,
+    which once made a damaged manifest pass for an older one without a checksum."""
+    store = Store(store_dir)
+    art = store.put("track", {"t": b"x"}, labels={"name": "oval"})
+    path = _manifest(store_dir, art.id)
+    original = path.read_bytes()
+    key = original.index(b'"sha256":"')
+    offsets = list(range(key, key + 10)) + list(range(0, len(original), max(1, len(original) // 40)))
+    for offset in offsets:
+        for bit in range(8):
+            damaged = bytearray(original)
+            damaged[offset] ^= 1 << bit
+            os.chmod(path, 0o644)
+            path.write_bytes(bytes(damaged))
+            with pytest.raises(IntegrityError):
+                Store(store_dir).get(art.id)
+    path.write_bytes(original)
+    assert Store(store_dir).get(art.id).id == art.id
+
+
 # --------------------------------------------------------------------------- 4. unreadable manifests
 def test_truncated_manifests_are_all_listed_and_repair_restores_a_working_store(store_dir):
     store = Store(store_dir)

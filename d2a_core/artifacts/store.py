@@ -471,6 +471,11 @@ class Store:
             raise BadFile(f"manifest is not valid JSON ({exc})") from None
         if not isinstance(manifest, dict) or any(k not in manifest for k in (*IDENTITY_FIELDS, "id", "provenance")):
             raise BadFile("manifest is incomplete")
+        # a flipped bit in the key "sha256" would otherwise pass for an older manifest without a
+        # checksum and skip the check below: any key beyond the known ones is damage
+        unknown = set(manifest) - {*IDENTITY_FIELDS, "id", "provenance", "sha256"}
+        if unknown:
+            raise BadFile(f"manifest has unknown fields {', '.join(sorted(unknown))} (modified)")
         try:
             actual = artifact_id(manifest)
         except (TypeError, ValueError) as exc:
