@@ -11,11 +11,12 @@ The paper's formulas (its appendix), and what this module computes:
 - pass:  c_pass * (ds_t - ds_{t-1}) * I(|ds_t| <= W_pass or |ds_{t-1}| <= W_pass)
          + c_pass * F * I(crash)                                            [F: the forfeit, below]
 - stay:  (s_t - s_{t-1}) + c_stay * (ds_t - ds_{t-1}) * I(|ds_t| <= W_stay or |ds_{t-1}| <= W_stay)
-- left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (de_t + c_margin) * I(racing it)
+- left:  c_side * (ds_t - ds_{t-1}) * I(pass window) + (min(de_t, cap) + c_margin) * I(racing it)
          + c_side * F * I(crash)
-- right: c_side * (ds_t - ds_{t-1}) * I(pass window) + (-de_t + c_margin) * I(racing it)
+- right: c_side * (ds_t - ds_{t-1}) * I(pass window) + (min(-de_t, cap) + c_margin) * I(racing it)
          + c_side * F * I(crash)
          I(racing it) = the opponent is still racing and ds_t >= -side_max_behind_m
+         cap = side_cap_m (the paper: no cap)
          (the paper prints `- (de_t + 0.3)`; see `right_mirrors_left`)
 
 "crash" is a collision or leaving the track: both end the episode.
@@ -52,10 +53,18 @@ lost (our quick left drivers of 2026-12-01 learnt this: 100 % finished, 94 % of 
 left, 72 % of them more than 30 m behind). A side is held only while racing the opponent, so the
 term is paid only within `side_max_behind_m` behind it (the grid gap is 15 m);
 `side_max_behind_m: null` and `side_only_while_racing: false` restore the literal formula.
+
+The paper's side term grows without bound with the lateral gap, so the best place to be is the
+road's very edge: our quick left drivers (2026-12-01, seeds 0-4) steered off the open left edge
+for 12-25k steps and 3 of 5 never learnt to stop there (right drivers start on their side with a
+barrier beyond the edge and did not). Being on a side is a matter of a car width and some margin,
+not of metres more: the gap pays up to `side_cap_m` (2.5 m: the 1.9 m car and 0.6 m between the
+two cars' sides) and nothing beyond. `side_cap_m: null` restores the uncapped term.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -92,6 +101,9 @@ class RewardConfig(Section):
     )
     side_max_behind_m: Optional[float] = Field(
         30.0, gt=0, description="pay the left/right side term only within this far behind the opponent (null: always)"
+    )
+    side_cap_m: Optional[float] = Field(
+        2.5, gt=0, description="the left/right side term pays the lateral gap up to this many metres (null: no cap)"
     )
     right_mirrors_left: bool = Field(
         True, description="right pays -de + c_margin (the mirror of left); false: the paper's -(de + c_margin)"
@@ -185,9 +197,10 @@ def reward_terms(q: StepQuantities, cfg: RewardConfig) -> RewardTerms:
     side = cfg.c_side * passing
     racing = (q.opponent_racing or not cfg.side_only_while_racing) and \
         (cfg.side_max_behind_m is None or q.ds >= -cfg.side_max_behind_m)
-    left_bias = (q.de + cfg.c_margin) if racing else 0.0
+    cap = math.inf if cfg.side_cap_m is None else cfg.side_cap_m
+    left_bias = (min(q.de, cap) + cfg.c_margin) if racing else 0.0
     if cfg.right_mirrors_left:
-        right_bias = (-q.de + cfg.c_margin) if racing else 0.0
+        right_bias = (min(-q.de, cap) + cfg.c_margin) if racing else 0.0
     else:
         right_bias = -(q.de + cfg.c_margin) if racing else 0.0
     return RewardTerms(

@@ -13,6 +13,8 @@ History:
   road is no finish; actor(sg(s)) in imagination; the expert chosen by `evaluation.criteria`.
 - 3: 2026-12-01: the left/right side term only within 30 m behind the opponent (changes left and
   right only; pass and stay train exactly as under 2).
+- 4: 2026-12-01: the left/right side term pays the lateral gap only up to 2.5 m (changes left and
+  right only; pass and stay train exactly as under 2 and 3).
 """
 
-TRAINING_CODE_VERSION = 3
+TRAINING_CODE_VERSION = 4

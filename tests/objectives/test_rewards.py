@@ -66,7 +66,7 @@ def test_side_term_stops_when_the_opponent_has_finished():
     keep earning its side bias until the time limit; the paper's literal formula on request."""
     done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), CFG)
     assert done.left == pytest.approx(1.0) and done.right == pytest.approx(1.0)
-    literal = RewardConfig(side_only_while_racing=False, right_mirrors_left=False)
+    literal = RewardConfig(side_only_while_racing=False, right_mirrors_left=False, side_cap_m=None)
     done = reward_terms(q(ds=-10.0, ds_prev=-11.0, de=5.0, opponent_racing=False), literal)
     assert done.left == pytest.approx(1.0 + 5.3) and done.right == pytest.approx(1.0 - 5.3)
 
@@ -143,10 +143,23 @@ def test_side_term_only_while_racing_the_opponent_not_hanging_back():
     """A car more than side_max_behind_m behind, on its side, earns no side bias: only the
     passing term, which charges it for dropping back; within the range, the usual bias."""
     near = reward_terms(q(ds=-29.0, ds_prev=-28.0, de=3.0), CFG)
-    assert near.left == pytest.approx(-1.0 + 3.3) and near.right == pytest.approx(-1.0 - 2.7)
+    assert near.left == pytest.approx(-1.0 + 2.5 + 0.3) and near.right == pytest.approx(-1.0 - 2.7)
     far = reward_terms(q(ds=-31.0, ds_prev=-30.0, de=3.0), CFG)
     assert far.left == pytest.approx(-1.0) and far.right == pytest.approx(-1.0)
     ahead = reward_terms(q(ds=120.0, ds_prev=119.0, de=3.0), CFG)
-    assert ahead.left == pytest.approx(1.0 + 3.3)
-    literal = RewardConfig(side_max_behind_m=None)
+    assert ahead.left == pytest.approx(1.0 + 2.5 + 0.3)
+    literal = RewardConfig(side_max_behind_m=None, side_cap_m=None)
     assert reward_terms(q(ds=-31.0, ds_prev=-30.0, de=3.0), literal).left == pytest.approx(-1.0 + 3.3)
+
+
+def test_side_term_pays_the_lateral_gap_only_up_to_the_cap():
+    """Beyond side_cap_m there is nothing more to earn by moving away from the opponent, so the
+    road's edge is no longer the best place to be; below it the term is the paper's de + 0.3."""
+    for de, left, right in ((1.0, 1.3, -0.7), (2.5, 2.8, -2.2), (4.5, 2.8, -4.2), (-6.0, -5.7, 2.8)):
+        t = reward_terms(q(ds=0.0, ds_prev=0.0, de=de), CFG)
+        assert t.left == pytest.approx(left) and t.right == pytest.approx(right)
+    uncapped = reward_terms(q(ds=0.0, ds_prev=0.0, de=4.5), RewardConfig(side_cap_m=None))
+    assert uncapped.left == pytest.approx(4.8)
+    # right mirrors left: the same gap on the other side pays the same
+    mirror = reward_terms(q(ds=0.0, ds_prev=0.0, de=-4.5), CFG)
+    assert mirror.right == pytest.approx(reward_terms(q(ds=0.0, ds_prev=0.0, de=4.5), CFG).left)

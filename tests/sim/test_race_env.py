@@ -192,8 +192,8 @@ def test_reward_is_task_plus_intent_term_from_info(straight, intent):
         expected = {
             "pass": cfg.c_pass * (passing + forfeit),
             "stay": (info["s"] - prev["s"]) + cfg.c_stay * staying,
-            "left": passing + forfeit + ((info["de"] + cfg.c_margin) if racing else 0.0),
-            "right": passing + forfeit + ((-info["de"] + cfg.c_margin) if racing else 0.0),
+            "left": passing + forfeit + ((min(info["de"], cfg.side_cap_m) + cfg.c_margin) if racing else 0.0),
+            "right": passing + forfeit + ((min(-info["de"], cfg.side_cap_m) + cfg.c_margin) if racing else 0.0),
         }[intent]
         assert reward == pytest.approx(info["reward_terms"]["task"] + expected, abs=1e-9)
 
