@@ -32,16 +32,17 @@ def test_the_papers_rows():
 def test_unknown_and_unimplemented_names_are_usage_errors():
     with pytest.raises(UsageError, match="unknown method 'dream2asist'.*dream2assist, dream2assist\\+a.*dreamer-ail"):
         get_method("dream2asist")
-    with pytest.raises(UsageError, match="'no-rssm' is registered but not implemented.*baselines.no_rssm:NoRSSMAgent"):
+    with pytest.raises(UsageError, match="'no-rssm' is registered but not implemented.*baselines.no_rssm:build_assistant"):
         get_method("no-rssm")
     with pytest.raises(UsageError, match="dreamer-ail"):
-        METHODS["dreamer-ail"].agent_class()
+        METHODS["dreamer-ail"].builder()
 
 
 def test_agents_load_lazily_and_reading_the_registry_imports_no_torch():
-    from d2a_core.agents.dreamer.agent import DreamerAgent
+    from d2a_core.agents.dreamer.agent import build_assistant
 
-    assert all(get_method(name).agent_class() is DreamerAgent for name in method_names(implemented_only=True))
+    assert all(get_method(name).builder() is build_assistant for name in method_names(implemented_only=True)
+               if get_method(name).agent_section == "dreamer")
     code = ("import sys, d2a_core.training.methods as m; m.get_method('dreamer'); "
             "assert not [k for k in sys.modules if k.split('.')[0] == 'torch'], 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)

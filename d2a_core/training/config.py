@@ -26,3 +26,14 @@ class AssistantConfig(Section):
 
     reward: AssistantRewardConfig = AssistantRewardConfig()
     intent_scale: float = Field(1.0, ge=0, description="weight of the intent head's NLL in the world-model loss")
+    env_steps: int = Field(2_000_000, gt=0, description="environment steps of the assistant's training (all envs together)")
+    num_envs: int = Field(4, ge=1, le=64, description="envs stepped in parallel during collection")
+    checkpoints: int = Field(10, ge=1, description="evenly spaced checkpoints, each evaluated on the panel")
+    human_explore: bool = Field(
+        True, description="training humans sample their actor (true) or take its mode; evaluation always takes the mode"
+    )
+    panel_weakest: int = Field(5, ge=0, description="imperfect humans per intent in the evaluation panel (plus the expert)")
+    panel_episodes: int = Field(10, ge=1, description="paired episodes per panel human at each checkpoint")
+    eval_envs: int = Field(8, ge=1, le=64)
+    log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
+    torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")

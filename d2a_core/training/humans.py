@@ -20,12 +20,10 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,6 +46,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.rollout import Collector, evaluate
+from d2a_core.training.run_state import save_atomic
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
@@ -91,15 +90,6 @@ def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int
     identity = {"format": RUN_FORMAT, "kind": "humans", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
                 "replays": bundle.replay_ids, "intent": intent, "config": config, "seed": seed}
     return hashlib.sha256(canonical_json(identity)).hexdigest()
-
-
-def _save_atomic(obj: Any, path: Path) -> None:
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        torch.save(obj, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def _agent_bytes(agent: DreamerAgent) -> bytes:
@@ -211,7 +201,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
                                                      config_record, seed, tags))
                 # hold before the state names the new checkpoint, so the holds always cover it
                 store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
-                _save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
                               "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve}, state_path)
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \

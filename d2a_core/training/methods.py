@@ -11,8 +11,10 @@ Each method is one row of the paper's comparison (section 4 and appendix; DESIGN
 | `no-rssm` | auxiliary classifier | 1 | 0 | 16-frame window, model-free actor-critic (not built yet) |
 | `dreamer-ail` | no | - | - | behaviour-transformer prior + adversarial-imitation residual (not built yet) |
 
-A method names its agent lazily (`entry_point = "module:Class"`, as Gymnasium does), so reading
-the registry (the CLI checking `--method`) imports no torch. `configure` applies the method's
+A method names its agent's builder lazily (`entry_point = "module:function"`, as Gymnasium
+does), so reading the registry (the CLI checking `--method`) imports no torch. A builder is called
+as `build(section, obs_space, act_space, intents, seed, device)` with the method's own config
+section (`agent_section`) and returns an `AssistantAgent` (`d2a_core.agents.protocol`). `configure` applies the method's
 row to a resolved config (the reward weights, the intent head), so a method's run key, made
 from the `config_sections` of the patched config, differs from every other method's.
 
@@ -29,7 +31,7 @@ from typing import Any, Optional
 
 from d2a_core.errors import UsageError
 
-DREAMER_AGENT = "d2a_core.agents.dreamer.agent:DreamerAgent"
+DREAMER_AGENT = "d2a_core.agents.dreamer.agent:build_assistant"
 
 # What every assistant's run depends on besides its own learner: the simulator, r^task and the
 # assistant's reward weights. The populations enter the run key as input artifacts, not config.
@@ -49,7 +51,8 @@ class Method:
     alpha_r: Optional[float]  # weight of r_hat*(y_hat); None: the method has its own reward
     alpha_a: Optional[float]  # weight of ||a_H + a_A - a*(y_hat)||; None: as alpha_r
     config_sections: tuple[str, ...]  # top-level config sections its run key depends on
-    entry_point: str  # "module:Class" of its agent, imported only by `agent_class`
+    entry_point: str  # "module:function" building its agent, imported only by `builder`
+    agent_section: str = "dreamer"  # the config section handed to the builder
     implemented: bool = True
     description: str = ""
 
@@ -63,11 +66,17 @@ class Method:
         """Whether its reward queries the experts (r_hat* or a*), so they must be filtered."""
         return bool(self.alpha_r) or bool(self.alpha_a)
 
-    def agent_class(self) -> type:
-        """Import and return the agent class of `entry_point`."""
+    def builder(self) -> Any:
+        """Import and return the agent builder of `entry_point`."""
         _require_implemented(self)
         module, _, attribute = self.entry_point.partition(":")
         return getattr(import_module(module), attribute)
+
+    def build_agent(self, config: Any, obs_space: Any, act_space: Any, intents: Sequence[str], seed: int,
+                    device: str = "cpu") -> Any:
+        """The method's agent for a root `config` already patched by `configure`."""
+        section = getattr(config, self.agent_section)
+        return self.builder()(section, obs_space, act_space, tuple(intents), seed, device)
 
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
@@ -144,11 +153,11 @@ for _method in (
     Method("dreamer", False, 0.0, 0.0, _DREAMER_SECTIONS, DREAMER_AGENT,
            description="DreamerV3 on task and intervention reward only (FCP-style partner training)"),
     Method("no-rssm", True, 1.0, 0.0, (*_COMMON_SECTIONS, "no_rssm"),
-           "d2a_core.agents.baselines.no_rssm:NoRSSMAgent", implemented=False,
+           "d2a_core.agents.baselines.no_rssm:build_assistant", agent_section="no_rssm", implemented=False,
            description="no world model: a 16-frame observation window, model-free actor-critic, "
                        "an auxiliary intent classifier"),
     Method("dreamer-ail", False, None, None, (*_COMMON_SECTIONS, "dreamer_ail"),
-           "d2a_core.agents.baselines.dreamer_ail:DreamerAILAgent", implemented=False,
+           "d2a_core.agents.baselines.dreamer_ail:build_assistant", agent_section="dreamer_ail", implemented=False,
            description="behaviour-transformer prior plus an adversarial-imitation residual assistant (BeTAIL-style)"),
 ):
     register_method(_method)

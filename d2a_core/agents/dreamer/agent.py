@@ -146,6 +146,15 @@ class DreamerAgent:
         new_state = PolicyState(feat, action.float())
         return self._to_env_action(new_state.action), new_state
 
+    @torch.no_grad()
+    def intent_probs(self, state: PolicyState) -> np.ndarray | None:
+        """The intent head's p(y_hat | s) (N, K) at `state`, or None without an intent head
+        (the head named "intent", as the method registry adds it)."""
+        heads = self.world_model.extra_heads
+        if "intent" not in heads:
+            return None
+        return heads["intent"].predict(state.latent).float().cpu().numpy()
+
     def with_action(self, state: PolicyState, env_actions: np.ndarray) -> PolicyState:
         """The same state with another action taken (e.g. a blended human+assistant action), so
         that the next `policy` call conditions on what was really executed."""
@@ -331,3 +340,11 @@ class DreamerAgent:
             return values.argmax(-1) + self._action_start
         env = self._action_low + (values + 1.0) * 0.5 * self._action_span
         return env.reshape(values.shape[0], *self._action_shape).astype(np.float32)
+
+
+def build_assistant(config: DreamerConfig, obs_space: gym.spaces.Space, act_space: gym.spaces.Space,
+                    intents: tuple[str, ...], seed: int, device: str = "cpu") -> DreamerAgent:
+    """A DreamerV3 assistant (the method registry's builder). Its intent head, if the method has
+    one, is already in `config.extra_heads` (see `Method.configure`), so `intents` is not needed."""
+    del intents
+    return DreamerAgent(obs_space, act_space, config.model_copy(update={"device": device}), seed=seed)

@@ -1,0 +1,94 @@
+"""`d2a train-assistant`: train Dream2Assist (or a baseline) with frozen human populations."""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, err_console, out_console, with_common_options
+from d2a_core import config as config_mod
+from d2a_core.training.methods import method_names
+
+
+@with_common_options
+def train_assistant(
+    track: Annotated[str, typer.Option("--track", help="Track name, alias or artifact id (built by make-track).")],
+    pair: Annotated[str, typer.Option("--pair", help="Intent pair the assistant tells apart: pass-stay or left-right.")],
+    method: Annotated[list[str], typer.Option(
+        "--method", help=f"Method to train, repeatable: {', '.join(method_names())}.")] = ["dream2assist"],  # noqa: B006
+    humans: Annotated[Optional[list[str]], typer.Option(
+        "--humans", help="Population of each intent of the pair, in order (id, prefix or alias) "
+                         "[default: humans/<track>/<intent>].", show_default=False)] = None,
+    preset: PresetOpt = "quick",
+    config_file: ConfigFileOpt = None,
+    overrides: SetOpt = None,
+    *,
+    run: RunContext,
+) -> None:
+    """Train assistants with the pair's frozen populations; store checkpoints evaluated on a paired panel."""
+    from d2a_core.training.assistant import parse_pair, train_assistant as train
+    from d2a_core.training.methods import get_method
+
+    parse_pair(pair)  # a bad pair or method is a usage error before anything loads
+    for name in method:
+        get_method(name)
+    resolved = config_mod.load(preset, config_file, overrides or [])
+    store = run.store()
+    results = []
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console)
+    total = resolved.config.assistant.env_steps
+    with contextlib.ExitStack() as cleanup:
+        for name in method:
+            state: dict[str, Any] = {"task": None, "next": 0.0}
+
+            def progress(p: dict[str, Any], name=name, state=state) -> None:
+                if not bar.live.is_started:
+                    bar.start()
+                    cleanup.callback(bar.stop)
+                if state["task"] is None:
+                    state["task"] = bar.add_task(name, total=total, stats="")
+                ret = p["recent_return"]
+                stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  r^A {ret:.1f}" if ret is not None else "")
+                bar.update(state["task"], completed=p["env_steps"], stats=stats)
+                if not err_console.is_terminal and p["env_steps"] / p["total"] >= state["next"]:
+                    err_console.print(f"{name}: {p['env_steps']}/{p['total']} env steps, {stats}")
+                    state["next"] += 0.05
+
+            result = train(store, track, pair, name, resolved, run.seed, humans=humans, device=run.device,
+                           progress=progress)
+            if result["cached"]:
+                made = result["cached_from"]
+                commit = (made.get("git_commit") or "unknown commit")[:12]
+                err_console.print(f"{name}: reusing stored assistant {result['id'][:12]} (same run key), trained "
+                                  f"{made.get('created')} by d2a {made.get('version')} at {commit}, "
+                                  f"training code version {made.get('training_code_version')}", soft_wrap=True)
+            if state["task"] is not None:
+                bar.update(state["task"], completed=total, stats="(stored result)" if result["cached"] else "done")
+            results.append(result)
+
+    def render(r: dict[str, Any]) -> None:
+        for res in r["assistants"]:
+            intents = res["intents"]
+            table = Table("id", "step", "F1", *(f"{i} weak gain m" for i in intents),
+                          *(f"{i} expert ratio" for i in intents),
+                          title=f"assistants/{res['track']}/{res['pair']}/{res['method']}/seed{res['seed']}")
+            for c in res["checkpoints"]:
+                m = c["metrics"]
+                f1 = m.get("intent_f1")
+                table.add_row(c["id"][:8], str(c["env_step"]), "-" if f1 is None else f"{f1:.3f}",
+                              *(_num(m.get(f"{i}/weak/progress_gain")) for i in intents),
+                              *(_num(m.get(f"{i}/expert/progress_ratio"), 3) for i in intents))
+            out_console.print(table)
+            shares = ", ".join(f"{k} {v:.0%}" for k, v in res["time_shares"].items())
+            out_console.print(f"wall time: {shares}")
+
+    run.emit({"assistants": results}, render)
+
+
+def _num(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"

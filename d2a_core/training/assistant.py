@@ -1,0 +1,362 @@
+"""`train-assistant`: an assistant trained with frozen human populations (paper Algorithm 1, phase 2).
+
+For a pair of intents (`pass-stay`, `left-right`) both populations are frozen. Every episode of
+every env draws an intent uniformly, then a checkpoint of that intent's population (the expert
+included) and an env seed (which draws the opponent replay). Human and assistant drive together
+(`training.shared_rollout`); the assistant learns on its own reward (equation 6, made in this
+process from the env's `r^task`, its action and, for the Dream2Assist methods, the experts of
+the pair filtered along every episode). What the method changes (intent head, reward weights,
+learner) comes from the method registry (`training.methods`).
+
+At `checkpoints` evenly spaced points the assistant is stored (kind `assistant`) with a paired
+evaluation on a fixed panel of the pair's humans (`evaluation.paired`): the panel's unassisted
+episodes are run once per run, the assisted ones at every checkpoint, on the same specs.
+
+Aliases: `assistants/<track>/<pair>/<method>/seed<k>` for the final checkpoint; the run's summary
+(kind `assistant-run`: checkpoints, curve, timing) gets `assistant-runs/<track>/<pair>/<method>/seed<k>`.
+
+Resume and caching work as in `training.humans`: the run key hashes the track, replays, both
+populations, pair, method, the config sections the method depends on, the seed and the training
+code version.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from d2a_core.agents.dreamer import native
+from d2a_core.agents.dreamer.expert import ExpertFilter
+from d2a_core.artifacts import Store, canonical_json
+from d2a_core.config import ResolvedConfig
+from d2a_core.errors import NotFoundError, TrainingError, UsageError
+from d2a_core.evaluation.metrics import aggregate
+from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
+from d2a_core.objectives.rewards import INTENTS
+from d2a_core.sim.race_env import RaceEnv
+from d2a_core.training.allocator import keep_freed_memory
+from d2a_core.training.code_version import TRAINING_CODE_VERSION
+from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
+from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
+from d2a_core.training.run_state import save_atomic
+from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
+
+RUN_FORMAT = 1
+PAIRS = ("pass-stay", "left-right")
+"""The paper's pairs; any two distinct intents written `a-b` are accepted."""
+
+ProgressFn = Callable[[dict[str, Any]], None]
+
+
+def parse_pair(pair: str) -> tuple[str, str]:
+    """`pass-stay` -> ("pass", "stay"); a UsageError names the valid forms."""
+    parts = tuple(pair.split("-"))
+    if len(parts) != 2 or parts[0] == parts[1] or not all(p in INTENTS for p in parts):
+        raise UsageError(f"pair {pair!r}: write two distinct intents as 'a-b' (the paper's: {', '.join(PAIRS)}; "
+                         f"intents: {', '.join(INTENTS)})")
+    return parts  # type: ignore[return-value]
+
+
+def _load_populations(store: Store, bundle: TrackBundle, intents: Sequence[str],
+                      refs: Sequence[str] | None) -> list[tuple[str, dict[str, Any]]]:
+    """(id, population.json) per intent of the pair, from `refs` or the default aliases."""
+    if refs is not None and len(refs) != len(intents):
+        raise UsageError(f"--humans takes one population per intent of the pair ({len(intents)}), got {len(refs)}")
+    out = []
+    for k, intent in enumerate(intents):
+        ref = refs[k] if refs is not None else f"humans/{bundle.track.name}/{intent}"
+        try:
+            art = store.get(ref)
+        except NotFoundError:
+            raise NotFoundError(
+                f"no population {ref!r} in store {store.root}; make it with: "
+                f"d2a train-humans --intent {intent} --track {bundle.track.name}") from None
+        if art.kind != "population":
+            raise UsageError(f"{ref} is a {art.kind} artifact, not a population")
+        pop = store.read_json(art.id, "population.json")
+        if pop["intent"] != intent:
+            raise UsageError(f"population {ref} is of intent {pop['intent']!r}, not {intent!r} "
+                             f"(--humans lists the pair's populations in order)")
+        if pop["track_id"] != bundle.track_id:
+            raise UsageError(f"population {ref} was trained on track {pop['track_id'][:12]}, not "
+                             f"{bundle.track.name} ({bundle.track_id[:12]})")
+        out.append((art.id, pop))
+    return out
+
+
+def _run_key(bundle: TrackBundle, population_ids: Sequence[str], pair: str, method: str,
+             config: dict[str, Any], seed: int) -> str:
+    identity = {"format": RUN_FORMAT, "kind": "assistant", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
+                "replays": bundle.replay_ids, "populations": list(population_ids), "pair": pair,
+                "method": method, "config": config, "seed": seed}
+    return hashlib.sha256(canonical_json(identity)).hexdigest()
+
+
+class _Timer:
+    """Wall time per phase (acting, expert filtering, simulation, learning, evaluation)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def add(self, name: str, seconds: float) -> None:
+        self.seconds[name] = self.seconds.get(name, 0.0) + seconds
+
+    def shares(self) -> dict[str, float]:
+        total = sum(self.seconds.values()) or 1.0
+        return {k: round(v / total, 4) for k, v in sorted(self.seconds.items())}
+
+
+def train_assistant(store: Store, track_ref: str, pair: str, method_name: str, resolved: ResolvedConfig,
+                    seed: int, humans: Sequence[str] | None = None, device: str = "cpu",
+                    progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Train (or resume, or look up) one assistant; returns its JSON summary. Everything it loads
+    and stores is held against `d2a artifacts gc` while it runs (lease) and after it dies (run holds)."""
+    with store.lease():
+        return _train(store, track_ref, pair, method_name, resolved, seed, humans, device, progress)
+
+
+def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: ResolvedConfig, seed: int,
+           humans_refs: Sequence[str] | None, device: str, progress: ProgressFn | None) -> dict[str, Any]:
+    intents = parse_pair(pair)
+    method = get_method(method_name)
+    cfg = method.configure(resolved.config, intents)
+    ac = cfg.assistant
+    bundle = load_track_bundle(store, track_ref, cfg.env.dt)
+    populations = _load_populations(store, bundle, intents, humans_refs)
+    population_ids = [pid for pid, _ in populations]
+    # the sections the method depends on, as patched by the method (intent head, reward weights)
+    config_record = {name: getattr(cfg, name).model_dump(mode="json") for name in method.config_sections}
+    key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
+    done = [a for a in store.list("assistant-run") if a.labels.get("run_key") == key]
+    if done:
+        result = store.read_json(done[-1].id, "run.json")
+        provenance = done[-1].manifest.get("provenance", {})
+        made_by = {"training_code_version": result.get("training_code_version"),
+                   "created": provenance.get("created"), **provenance.get("code", {})}
+        return dict(result, run_id=done[-1].id, resumed_from_env_step=None, cached=True, cached_from=made_by)
+
+    if ac.torch_threads:
+        torch.set_num_threads(ac.torch_threads)
+    keep_freed_memory()
+
+    def make_env() -> RaceEnv:
+        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
+                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+
+    envs = [make_env() for _ in range(ac.num_envs)]
+    obs_space, act_space = envs[0].observation_space, envs[0].action_space
+    # every checkpoint of both populations, in pair order; labels are the intents' indices
+    human_ids = [c["id"] for _, pop in populations for c in pop["checkpoints"]]
+    human_labels = [k for k, (_, pop) in enumerate(populations) for _ in pop["checkpoints"]]
+    human_agents = [load_human(store, hid, obs_space, act_space, device) for hid in human_ids]
+    by_id = dict(zip(human_ids, human_agents))
+    expert_agents = [by_id[pop["expert"]] for _, pop in populations]
+    the_panel = panel([pop for _, pop in populations], intents, ac.panel_weakest)
+
+    agent = method.build_agent(cfg, obs_space, act_space, intents, seed, device)
+    inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
+    run_dir = store.run_dir(key)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    state_path = run_dir / "state.pt"
+    env_steps, checkpoints, curve, resumed_from, unassisted = 0, [], [], None, None
+    timer = _Timer()
+    if state_path.is_file():
+        saved = torch.load(state_path, map_location=device, weights_only=False)
+        agent.load_state_dict(saved["agent"])
+        env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        unassisted, timer.seconds = saved["unassisted"], saved["timing"]
+        try:
+            store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
+        except NotFoundError as exc:
+            raise TrainingError(f"cannot resume the assistant from {state_path}: {exc}; delete {run_dir} "
+                                "to train from the start") from None
+        resumed_from = env_steps
+    else:
+        store.hold_run(key, inputs)
+
+    # episodes: intent uniform, then a checkpoint of its population, fresh env seeds (after a
+    # resume, seeds continue from the step count so the continued run does not replay old episodes)
+    rng = np.random.default_rng([seed, env_steps])
+    by_label = [[j for j, lab in enumerate(human_labels) if lab == k] for k in range(len(intents))]
+    next_seed = iter(range(seed * 1_000_003 + env_steps, 2**62))
+
+    def draw() -> EpisodeSpec:
+        label = int(rng.integers(len(intents)))
+        return EpisodeSpec(seed=next(next_seed), human=int(rng.choice(by_label[label])), label=label)
+
+    drivers = HumanDrivers(human_agents, ac.num_envs, explore=ac.human_explore, seed=seed * 7 + 1 + env_steps)
+    experts = [ExpertFilter(e, ac.num_envs, sample=True, seed=seed * 11 + k + env_steps)
+               for k, e in enumerate(expert_agents)] if method.uses_experts else None
+    label_field = INTENT_HEAD_NAME if method.intent_head else None
+    collector = SharedCollector(envs, drivers, intents, draw, assistant=agent, experts=experts,
+                                reward_config=ac.reward, label_field=label_field)
+
+    def evaluate_panel(assistant, steps: bool = False) -> list[dict[str, Any]]:
+        return _run_panel(the_panel, by_id, intents, make_env, ac, seed, assistant, expert_agents,
+                          method, cfg, steps=steps)
+
+    if unassisted is None:
+        started = time.perf_counter()
+        unassisted = evaluate_panel(None)
+        timer.add("evaluation", time.perf_counter() - started)
+
+    schedule = [round(ac.env_steps * (k + 1) / ac.checkpoints) for k in range(ac.checkpoints)]
+    pending = [s for s in schedule if s > env_steps]
+    tags = {"track": bundle.track.name, "pair": pair, "method": method.name, "seed": seed}
+    recent: deque[dict[str, Any]] = deque(maxlen=40)
+    last_metrics: dict[str, float] = {}
+    next_log = (env_steps // ac.log_every + 1) * ac.log_every
+    start_time, start_updates = time.monotonic(), agent.updates_done if hasattr(agent, "updates_done") else 0
+    try:
+        while pending:
+            recent.extend(collector.step(explore=True, learn=True))
+            env_steps += collector.n
+            started = time.perf_counter()
+            for _ in range(agent.updates_due(env_steps)):
+                last_metrics = agent.train_step()
+            timer.add("learning", time.perf_counter() - started)
+            if env_steps >= next_log or env_steps >= pending[0]:
+                curve.append({"env_step": env_steps, **_episode_stats(list(recent), len(intents)),
+                              **{k: round(v, 6) for k, v in last_metrics.items()}})
+                next_log = (env_steps // ac.log_every + 1) * ac.log_every
+            if progress:
+                elapsed = max(time.monotonic() - start_time, 1e-9)
+                updates = getattr(agent, "updates_done", 0)
+                progress({"method": method.name, "env_steps": env_steps, "total": ac.env_steps,
+                          "updates_per_s": (updates - start_updates) / elapsed,
+                          "recent_return": float(np.mean([e["assist/total"] for e in recent])) if recent else None})
+            if env_steps >= pending[0]:
+                pending.pop(0)
+                started = time.perf_counter()
+                checkpoints.append(_store_checkpoint(store, agent, the_panel, unassisted, intents, inputs, env_steps,
+                                                     ac, config_record, seed, tags, evaluate_panel))
+                timer.add("evaluation", time.perf_counter() - started)
+                store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
+                for name, seconds in collector.timing.items():
+                    timer.add(name, seconds)
+                collector.timing.clear()
+                save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                             "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve,
+                             "unassisted": unassisted, "timing": timer.seconds}, state_path)
+    except TrainingError as exc:
+        last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
+            if checkpoints else ""
+        raise TrainingError(f"assistant ({method.name}) training stopped at env step {env_steps}: {exc}{last}") from None
+    finally:
+        for env in envs:
+            env.close()
+
+    final = checkpoints[-1]
+    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
+    result = {"method": method.name, "track": bundle.track.name, "track_id": bundle.track_id, "pair": pair,
+              "intents": list(intents), "seed": seed, "id": final["id"], "populations": population_ids,
+              "panel": [vars(h) for h in the_panel], "checkpoints": checkpoints,
+              "time_shares": timer.shares(), "time_s": {k: round(v, 3) for k, v in timer.seconds.items()},
+              "training_code_version": TRAINING_CODE_VERSION, "runtime": runtime,
+              "resumed_from_env_step": resumed_from}
+    with store.create("assistant-run", inputs=[*inputs, *(c["id"] for c in checkpoints)], config=config_record,
+                      seed=seed, labels={**tags, "run_key": key}) as writer:
+        writer.add_json("run.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
+        writer.add_json("unassisted.json", {"episodes": unassisted})
+        writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
+    name = f"{bundle.track.name}/{pair}/{method.name}/seed{seed}"
+    store.tag(final["id"], f"assistants/{name}")
+    store.tag(writer.artifact.id, f"assistant-runs/{name}")
+    state_path.unlink(missing_ok=True)
+    store.release_run(key)
+    return dict(result, run_id=writer.artifact.id, cached=False)
+
+
+def _episode_stats(episodes: list[dict[str, Any]], classes: int) -> dict[str, Any]:
+    """Training-curve columns from recent episodes: outcome rates, each assistant reward term's
+    mean episode sum, and the intent estimate's per-step accuracy."""
+    if not episodes:
+        return {"episode/episodes": 0}
+    out = {f"episode/{k}": v for k, v in aggregate(
+        [{k: e[k] for k in ("progress_m", "return", "finished", "collision", "off_track", "intervention")}
+         for e in episodes]).items()}
+    for name in ASSISTANT_TERMS:
+        values = [e[f"assist/{name}"] for e in episodes if e.get(f"assist/{name}") is not None]
+        if values:
+            out[f"assist/{name}"] = round(float(np.mean(values)), 6)
+    acc = [e["intent_accuracy"] for e in episodes if "intent_accuracy" in e]
+    if acc:
+        out["episode/intent_accuracy"] = round(float(np.mean(acc)), 6)
+    return out
+
+
+def _run_panel(the_panel: Sequence[PanelHuman], by_id: dict[str, Any], intents: Sequence[str], make_env,
+               ac, seed: int, assistant, expert_agents, method: Method, cfg, steps: bool) -> list[dict[str, Any]]:
+    """Every panel human on the same `panel_episodes` env seeds; assisted when `assistant` is
+    given (its mode), else unassisted. One row per spec, in spec order."""
+    specs = [EpisodeSpec(seed=20_000_003 + seed * 1_000 + j, human=h, label=the_panel[h].label)
+             for h in range(len(the_panel)) for j in range(ac.panel_episodes)]
+    queue = iter(specs)
+    envs = [make_env() for _ in range(max(1, min(ac.eval_envs, len(specs))))]
+    agents = [by_id[h.id] for h in the_panel]
+    drivers = HumanDrivers(agents, len(envs), explore=False, seed=0)
+    experts = None
+    if assistant is not None and method.uses_experts:
+        experts = [ExpertFilter(e, len(envs), sample=False, seed=k) for k, e in enumerate(expert_agents)]
+    try:
+        collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
+                                    experts=experts, reward_config=cfg.assistant.reward, keep_steps=steps,
+                                    label_field=None)
+        rows: list[dict[str, Any]] = []
+        while not collector.idle:
+            rows.extend(collector.step(explore=False, learn=False))
+    finally:
+        for env in envs:
+            env.close()
+    order = {(s.human, s.seed): k for k, s in enumerate(specs)}
+    return sorted(rows, key=lambda r: order[(r["human"], r["seed"])])
+
+
+def _steps_npz(logs: Sequence[dict[str, Any]]) -> bytes:
+    """Per-step logs of the assisted panel episodes, concatenated: `episode` (row index in
+    eval.json's `assisted`), the unweighted reward terms (`terms`, columns `term_names`), the
+    inferred intent `y_hat`, its probability of the true intent `p_true`, and both actions."""
+    episode = np.concatenate([np.full(len(log["terms"]), k, np.int32) for k, log in enumerate(logs)] or
+                             [np.zeros(0, np.int32)])
+    def stack(name: str, width: int) -> np.ndarray:
+        rows = [np.asarray(log[name], np.float32).reshape(-1, width) for log in logs if len(log[name])]
+        return np.concatenate(rows) if rows else np.zeros((0, width), np.float32)
+
+    arrays = {"episode": episode, "terms": stack("terms", len(ASSISTANT_TERMS)),
+              "term_names": np.array(ASSISTANT_TERMS), "human_action": stack("human_action", 2),
+              "assistant_action": stack("assistant_action", 2)}
+    if all(len(log["y_hat"]) == len(log["terms"]) for log in logs) and any(len(log["y_hat"]) for log in logs):
+        arrays["y_hat"] = np.concatenate([np.asarray(log["y_hat"], np.int8) for log in logs])
+        arrays["p_true"] = np.concatenate([np.asarray(log["p_true"], np.float32) for log in logs])
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def _agent_bytes(agent) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(agent.state_dict(include_replay=False), buffer)
+    return buffer.getvalue()
+
+
+def _store_checkpoint(store: Store, agent, the_panel, unassisted, intents, inputs, env_steps, ac, config_record,
+                      seed, tags, evaluate_panel) -> dict[str, Any]:
+    assisted = evaluate_panel(agent, steps=True)
+    step_logs = [row.pop("steps_log") for row in assisted]
+    summary = paired_summary(the_panel, unassisted, assisted, intents)
+    fraction = round(env_steps / ac.env_steps, 6)
+    with store.create("assistant", inputs=inputs, config=config_record, seed=seed,
+                      labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
+        writer.add_bytes("agent.pt", _agent_bytes(agent))
+        writer.add_json("eval.json", {"summary": summary, "panel": [vars(h) for h in the_panel],
+                                      "assisted": assisted})
+        writer.add_bytes("steps.npz", _steps_npz(step_logs))
+    return {"id": writer.artifact.id, "env_step": env_steps, "fraction": fraction, "metrics": summary}

@@ -1,0 +1,313 @@
+"""Shared control in a batch of race envs: frozen humans and an assistant drive, experts watch.
+
+This is the assistant's collector (paper Algorithm 1, second phase) and the paired evaluator's
+engine. Per vector step it calls the assistant once, each human checkpoint in use once (on the
+envs it drives), each expert filter once, and steps every env with `clip(a_H + a_A, -1, 1)`. The
+humans live here, outside the env (`SharedControl` is the single-env form, for rendering).
+
+What each party sees:
+
+- the assistant: the env's observation, whose partner slot holds the human's last action, and
+  (as a training target only, never an input) the index of the human's intent in the pair;
+- a human: the same observation with the assistant's last action in the partner slot; its
+  recurrent state continues with the *executed* (blended) action, so its world model tracks
+  where the car really went;
+- an expert filter (`ExpertFilter`): the observation with an empty partner slot (experts drove
+  alone) and the blended action.
+
+Episodes come from `next_episode()`, which returns an `EpisodeSpec` (who drives, which env seed
+and replay) or None (that env then stays idle): random draws during training, a fixed list in
+evaluation, so two conditions can be paired on the same specs.
+
+The assistant's reward (`objectives.assistant`, equation 6) is made here, in the training
+process: the reward for arriving at x_{t+1} uses the assistant's action a_A,t and its inferred
+intent y_hat_t at x_t, the expert reward r_hat*(y_hat_t) read at x_{t+1} and the expert action
+a*_t(y_hat_t) at x_t.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from d2a_core.agents.dreamer.agent import DreamerAgent, PolicyState
+from d2a_core.agents.dreamer.expert import ExpertFilter
+from d2a_core.agents.dreamer.latent import Latent
+from d2a_core.agents.protocol import AssistantAgent
+from d2a_core.evaluation.metrics import episode_metrics
+from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, pick_intent
+from d2a_core.sim.race_env import RaceEnv
+
+ASSISTANT_TERMS = ("task", "intervention", "expert_reward", "expert_distance", "total")
+"""The assistant reward's terms, unweighted (`AssistantRewardTerms`), summed per episode as
+`assist/<term>` so that the return of any weighting can be recomputed (it is linear in them)."""
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """What defines an episode: the env seed (start and, unless given, the replay drawn), the
+    human checkpoint (index into the collector's humans) and its intent (index in the pair)."""
+
+    seed: int
+    human: int
+    label: int
+    replay: int | None = None
+
+
+def _rows(state: PolicyState, index: torch.Tensor) -> PolicyState:
+    latent = state.latent
+    probs = None if latent.probs is None else latent.probs[index]
+    return PolicyState(Latent(latent.h[index], latent.index[index], probs), state.action[index])
+
+
+def _put_rows(state: PolicyState, index: torch.Tensor, rows: PolicyState) -> None:
+    state.latent.h[index] = rows.latent.h.to(state.latent.h.dtype)
+    state.latent.index[index] = rows.latent.index
+    if state.latent.probs is not None and rows.latent.probs is not None:
+        state.latent.probs[index] = rows.latent.probs.to(state.latent.probs.dtype)
+    state.action[index] = rows.action
+
+
+class HumanDrivers:
+    """Frozen human checkpoints (DreamerAgents) driving `num_envs` envs, one checkpoint per env;
+    one batched policy call per checkpoint in use."""
+
+    def __init__(self, agents: Sequence[DreamerAgent], num_envs: int, explore: bool, seed: int) -> None:
+        self.agents = list(agents)
+        self.num_envs = num_envs
+        self.explore = explore
+        self.generator = torch.Generator().manual_seed(seed)
+        self.assigned = np.full(num_envs, -1, np.int64)
+        self._states: dict[int, PolicyState] = {}
+
+    def assign(self, env: int, human: int) -> None:
+        self.assigned[env] = human
+
+    def _state(self, k: int) -> PolicyState:
+        if k not in self._states:
+            self._states[k] = self.agents[k].initial_state(self.num_envs)
+        return self._states[k]
+
+    def act(self, obs: np.ndarray, first: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """Actions (N, 2) of each active env's human on its observation; `first` starts episodes."""
+        actions = np.zeros((self.num_envs, 2), np.float32)
+        for k in np.unique(self.assigned[active]):
+            envs = np.flatnonzero(active & (self.assigned == k))
+            index = torch.as_tensor(envs)
+            agent, state = self.agents[k], self._state(int(k))
+            rows = _rows(state, index)
+            out, rows = agent.policy({"obs": obs[envs], "is_first": first[envs]}, rows, explore=self.explore,
+                                     generator=self.generator)
+            _put_rows(state, index, rows)
+            actions[envs] = out
+        return actions
+
+    def executed(self, blended: np.ndarray, active: np.ndarray) -> None:
+        """Each active env's human state continues with the action the car executed."""
+        for k in np.unique(self.assigned[active]):
+            envs = np.flatnonzero(active & (self.assigned == k))
+            index = torch.as_tensor(envs)
+            state = self._state(int(k))
+            rows = self.agents[k].with_action(_rows(state, index), blended[envs])
+            state.action[index] = rows.action
+
+
+class SharedCollector:
+    """Steps `envs` under shared control; see the module docstring.
+
+    `intents`: the pair, in label order. `experts`: one filter per intent of the pair (or None
+    when the method's reward queries no expert). `assistant`: None drives unassisted (a_A = 0).
+    `keep_steps`: keep per-step arrays of each episode (terms, actions, intent estimates)."""
+
+    def __init__(self, envs: Sequence[RaceEnv], humans: HumanDrivers, intents: Sequence[str],
+                 next_episode: Callable[[], EpisodeSpec | None], assistant: AssistantAgent | None = None,
+                 experts: Sequence[ExpertFilter] | None = None,
+                 reward_config: AssistantRewardConfig | None = None, keep_steps: bool = False,
+                 label_field: str | None = "intent") -> None:
+        self.envs = list(envs)
+        self.n = len(self.envs)
+        self.humans = humans
+        self.intents = tuple(intents)
+        self.next_episode = next_episode
+        self.assistant = assistant
+        self.experts = list(experts) if experts else []
+        self.reward_config = reward_config or AssistantRewardConfig()
+        self.keep_steps = keep_steps
+        self.label_field = label_field
+        self.timing: dict[str, float] = {}  # wall seconds per phase since the caller last cleared it
+        wants_experts = self.reward_config.alpha_r > 0 or self.reward_config.alpha_a > 0
+        if assistant is not None and wants_experts and not self.experts:
+            raise ValueError("the assistant's reward weights the experts (alpha_r or alpha_a > 0) but no "
+                             "expert filters were given")
+        obs_size = self.envs[0].observation_space.shape[0]
+        self._obs = np.zeros((self.n, obs_size), np.float32)  # the assistant's view
+        self._human_obs = np.zeros((self.n, obs_size), np.float32)
+        self._reward = np.zeros(self.n, np.float32)
+        self._first = np.ones(self.n, bool)
+        self._terminal = np.zeros(self.n, bool)
+        self._done = np.zeros(self.n, bool)
+        self._idle = np.zeros(self.n, bool)
+        self._spec: list[EpisodeSpec | None] = [None] * self.n
+        self._labels = np.zeros(self.n, np.int64)
+        self._episode: list[dict[str, Any]] = [{} for _ in range(self.n)]
+        self._assistant_state: Any = None
+        self._a_star: np.ndarray | None = None  # (K, N, 2) the experts' actions at the current state
+        for i in range(self.n):
+            self._reset(i)
+        if self.experts:
+            for expert in self.experts:
+                expert.reset(np.ones(self.n, bool))
+            self._a_star = np.stack([e.step(self._expert_view(self._obs), None).action for e in self.experts])
+
+    # --- episodes
+
+    def _reset(self, i: int) -> None:
+        spec = self.next_episode()
+        self._spec[i] = spec
+        self._first[i] = True
+        self._terminal[i] = False
+        self._done[i] = False
+        self._reward[i] = 0.0
+        if spec is None:
+            self._idle[i] = True
+            return
+        options: dict[str, Any] = {"intent": self.intents[spec.label]}
+        if spec.replay is not None:
+            options["replay"] = spec.replay
+        obs, info = self.envs[i].reset(seed=spec.seed, options=options)
+        self._obs[i] = obs
+        self._human_obs[i] = obs
+        self._labels[i] = spec.label
+        self.humans.assign(i, spec.human)
+        self._episode[i] = {"infos": [info], "rewards": [], "terms": [], "y_hat": [], "p_true": [],
+                            "human_action": [], "assistant_action": []}
+
+    @staticmethod
+    def _expert_view(obs: np.ndarray) -> np.ndarray:
+        view = obs.copy()
+        view[:, -2:] = 0.0  # experts drove alone: their partner slot was always empty
+        return view
+
+    @property
+    def idle(self) -> bool:
+        """Whether every env has run out of episodes."""
+        return bool(self._idle.all())
+
+    # --- stepping
+
+    def step(self, explore: bool = True, learn: bool = True) -> list[dict[str, Any]]:
+        """One record per env: act, store (when `learn`), advance. Returns the episodes that
+        ended on this call: their spec, metrics and the sums of the assistant's reward terms."""
+        clock = time.perf_counter()
+        active = ~self._idle
+        record = {"obs": self._obs.copy(), "reward": self._reward.copy(), "is_first": self._first.copy(),
+                  "is_terminal": self._terminal.copy()}
+        y_hat = probs = None
+        if self.assistant is not None:
+            a_assist, self._assistant_state = self.assistant.policy(record, self._assistant_state, explore=explore)
+            a_assist = np.asarray(a_assist, np.float32).reshape(self.n, 2)
+            probs = self.assistant.intent_probs(self._assistant_state)
+            if probs is not None:
+                y_hat = np.asarray(probs).argmax(-1)
+            if self.experts and y_hat is None:
+                raise ValueError("the assistant gives no intent estimate, but its reward queries the experts")
+            if learn:
+                labels = {self.label_field: self._labels.copy()} if self.label_field else {}
+                self.assistant.observe({**record, "action": a_assist, **labels})
+        else:
+            a_assist = np.zeros((self.n, 2), np.float32)
+        clock = self._tick("acting/assistant", clock)
+        stepping = active & ~self._done
+        a_human = self.humans.act(self._human_obs, self._first, stepping)
+        clock = self._tick("acting/humans", clock)
+        blended = np.clip(a_human + a_assist, -1.0, 1.0)
+        task = np.zeros(self.n)
+        reset = np.zeros(self.n, bool)
+        for i, env in enumerate(self.envs):
+            if self._idle[i]:
+                continue
+            if self._done[i]:
+                self._reset(i)
+                reset[i] = not self._idle[i]
+                continue
+            ep = self._episode[i]
+            if probs is not None:
+                ep["y_hat"].append(int(y_hat[i]))
+                ep["p_true"].append(float(probs[i, self._labels[i]]))
+            env.set_partner_action(a_human[i])  # the assistant's next observation shows a_H
+            obs, reward, terminated, truncated, info = env.step(blended[i])
+            ep["infos"].append(dict(info, human_action=a_human[i], assistant_action=a_assist[i]))
+            ep["rewards"].append(float(reward))
+            if self.keep_steps:
+                ep["human_action"].append(a_human[i].tolist())
+                ep["assistant_action"].append(a_assist[i].tolist())
+            task[i] = info["reward_terms"]["task"]
+            self._obs[i] = obs
+            self._human_obs[i] = obs
+            self._human_obs[i, -2:] = a_assist[i]  # ...and the human's shows a_A
+            self._first[i] = False
+            self._terminal[i] = terminated
+            self._done[i] = terminated or truncated
+        clock = self._tick("simulation", clock)
+        self.humans.executed(blended, stepping)
+        clock = self._tick("acting/humans", clock)
+
+        r_star = a_star_now = None
+        if self.experts:
+            for expert in self.experts:
+                expert.reset(reset)
+            out = [e.step(self._expert_view(self._obs), blended) for e in self.experts]
+            r_star = np.stack([o.reward for o in out])
+            a_star_now = np.stack([o.action for o in out])
+        choose = y_hat if y_hat is not None else np.zeros(self.n, np.int64)
+        use_experts = self.experts and y_hat is not None
+        terms = assistant_reward(
+            task, a_assist, a_human,
+            pick_intent(r_star, choose) if use_experts else None,
+            pick_intent(self._a_star, choose) if use_experts else None,
+            self.reward_config if use_experts else _without_experts(self.reward_config),
+        )
+        if a_star_now is not None:
+            self._a_star = a_star_now
+        self._tick("expert_filtering", clock)
+        finished = []
+        for i in np.flatnonzero(stepping):
+            self._reward[i] = terms.total[i]
+            ep = self._episode[i]
+            ep["terms"].append([float(getattr(terms, name)[i]) for name in ASSISTANT_TERMS])
+            if self._done[i]:
+                finished.append(self._finish(i))
+        return finished
+
+    def _tick(self, phase: str, since: float) -> float:
+        now = time.perf_counter()
+        self.timing[phase] = self.timing.get(phase, 0.0) + now - since
+        return now
+
+    def _finish(self, i: int) -> dict[str, Any]:
+        ep = self._episode[i]
+        spec = self._spec[i]
+        assert spec is not None
+        row: dict[str, Any] = {**asdict(spec), "intent": self.intents[spec.label],
+                               **episode_metrics(ep["infos"], ep["rewards"])}
+        terms = np.array(ep["terms"], np.float64).reshape(-1, len(ASSISTANT_TERMS))
+        for k, name in enumerate(ASSISTANT_TERMS):
+            row[f"assist/{name}"] = float(np.nansum(terms[:, k])) if np.isfinite(terms[:, k]).any() else None
+        if ep["y_hat"]:
+            row["intent_accuracy"] = float(np.mean(np.array(ep["y_hat"]) == spec.label))
+            # one row of the per-step confusion matrix: how often each intent was inferred
+            row["intent_counts"] = np.bincount(ep["y_hat"], minlength=len(self.intents)).tolist()
+        if self.keep_steps:
+            row["steps_log"] = {"terms": terms.tolist(), "y_hat": ep["y_hat"], "p_true": ep["p_true"],
+                                "human_action": ep["human_action"], "assistant_action": ep["assistant_action"]}
+        return row
+
+
+def _without_experts(cfg: AssistantRewardConfig) -> AssistantRewardConfig:
+    """The config with the expert terms off, for a method (or a step) that queries no expert."""
+    return cfg.model_copy(update={"alpha_r": 0.0, "alpha_a": 0.0})
