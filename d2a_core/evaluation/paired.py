@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from d2a_core.evaluation.criteria import performance_fractions
+
 WEAKEST = 5
 """Imperfect humans per intent in the panel (the paper's protocol: the five weakest checkpoints)."""
 
@@ -42,13 +44,15 @@ def panel(populations: Sequence[Mapping[str, Any]], intents: Sequence[str], weak
     out: list[PanelHuman] = []
     for label, (intent, pop) in enumerate(zip(intents, populations)):
         checkpoints = list(pop["checkpoints"])
-        others = sorted((c for c in checkpoints if c["id"] != pop["expert"]),
-                        key=lambda c: (c.get("performance", 0.0), c["env_step"]))
-        for c in others[:weakest]:
-            out.append(PanelHuman(c["id"], intent, label, "weak", float(c.get("performance", 0.0)), c["env_step"]))
-        expert = next(c for c in checkpoints if c["id"] == pop["expert"])
-        out.append(PanelHuman(expert["id"], intent, label, "expert", float(expert.get("performance", 1.0)),
-                              expert["env_step"]))
+        expert_index = next(k for k, c in enumerate(checkpoints) if c["id"] == pop["expert"])
+        # recomputed from the evaluated returns (populations made before `performance` was stored lack it)
+        performance = performance_fractions(checkpoints, expert_index)
+        others = sorted((k for k in range(len(checkpoints)) if k != expert_index),
+                        key=lambda k: (performance[k], checkpoints[k]["env_step"]))
+        for k in [*others[:weakest], expert_index]:
+            c = checkpoints[k]
+            role = "expert" if k == expert_index else "weak"
+            out.append(PanelHuman(c["id"], intent, label, role, round(float(performance[k]), 6), c["env_step"]))
     return out
 
 
