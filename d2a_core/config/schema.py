@@ -17,6 +17,7 @@ from d2a_core.sim.vehicle import VehicleConfig
 from d2a_core.sim.world import WorldConfig
 from d2a_core.tracks.config import TracksConfig
 from d2a_core.training.config import AssistantConfig, HumansConfig
+from d2a_core.agents.baselines.no_rssm_config import NoRSSMConfig
 from d2a_core.agents.dreamer.config import DreamerConfig
 
 
@@ -53,3 +54,4 @@ class Config(Section):
     dreamer: DreamerConfig = DreamerConfig()
     humans: HumansConfig = HumansConfig()
     assistant: AssistantConfig = AssistantConfig()
+    no_rssm: NoRSSMConfig = NoRSSMConfig()

@@ -8,7 +8,7 @@ Each method is one row of the paper's comparison (section 4 and appendix; DESIGN
 | `dream2assist+a` | yes | 1 | 1 | the same, plus the distance to the expert's action |
 | `dream2assist+a-r` | yes | 0 | 1 | the distance to the expert's action only |
 | `dreamer` | no | 0 | 0 | DreamerV3 on task + intervention reward (FCP-style) |
-| `no-rssm` | auxiliary classifier | 1 | 0 | 16-frame window, model-free actor-critic (not built yet) |
+| `no-rssm` | auxiliary classifier | 1 | 0 | 16-frame window, model-free actor-critic (PPO), `agents.baselines.no_rssm` |
 | `dreamer-ail` | no | - | - | behaviour-transformer prior + adversarial-imitation residual (not built yet) |
 
 A method names its agent's builder lazily (`entry_point = "module:function"`, as Gymnasium
@@ -153,7 +153,7 @@ for _method in (
     Method("dreamer", False, 0.0, 0.0, _DREAMER_SECTIONS, DREAMER_AGENT,
            description="DreamerV3 on task and intervention reward only (FCP-style partner training)"),
     Method("no-rssm", True, 1.0, 0.0, (*_COMMON_SECTIONS, "no_rssm"),
-           "d2a_core.agents.baselines.no_rssm:build_assistant", agent_section="no_rssm", implemented=False,
+           "d2a_core.agents.baselines.no_rssm:build_assistant", agent_section="no_rssm",
            description="no world model: a 16-frame observation window, model-free actor-critic, "
                        "an auxiliary intent classifier"),
     Method("dreamer-ail", False, None, None, (*_COMMON_SECTIONS, "dreamer_ail"),

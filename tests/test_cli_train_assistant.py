@@ -1,0 +1,115 @@
+"""`d2a train-assistant` through the CLI: every method end to end on smoke, artifacts and lineage,
+the stored result, resume after SIGKILL, and usage errors."""
+
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from d2a_core.artifacts import Store
+from d2a_core.training.methods import method_names
+
+from d2a_test_helpers import REPO, run_cli
+
+SMOKE = ("--preset", "smoke")
+PAIR = ("--track", "straightaway", "--pair", "pass-stay")
+
+
+@pytest.fixture(scope="module")
+def pair_store(tmp_path_factory):
+    store = tmp_path_factory.mktemp("assistant") / "store"
+    assert run_cli("make-track", "straightaway", *SMOKE, "--json", store=store).code == 0
+    res = run_cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json",
+                  store=store)
+    assert res.code == 0, res.stderr
+    return store
+
+
+def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, pair_store):
+    methods = method_names(implemented_only=True)
+    res = cli("train-assistant", *PAIR, *(a for m in methods for a in ("--method", m)), *SMOKE, "--json",
+              store=pair_store)
+    assert res.code == 0, res.stderr
+    store = Store(pair_store)
+    pops = [store.resolve("humans/straightaway/pass"), store.resolve("humans/straightaway/stay")]
+    results = res.json["assistants"]
+    assert [r["method"] for r in results] == methods
+    for r in results:
+        assert not r["cached"] and r["pair"] == "pass-stay" and r["populations"] == pops
+        assert [c["env_step"] for c in r["checkpoints"]] == [120, 240]
+        art = store.get(r["id"])
+        assert art.kind == "assistant" and art.labels["method"] == r["method"] and art.labels["pair"] == "pass-stay"
+        assert set(pops) <= set(art.inputs)  # traced back to the humans, and through them to track and replays
+        assert store.resolve(f"assistants/straightaway/pass-stay/{r['method']}/seed0") == r["checkpoints"][-1]["id"]
+        run_art = store.get(f"assistant-runs/straightaway/pass-stay/{r['method']}/seed0")
+        assert run_art.kind == "assistant-run" and run_art.id == r["run_id"]
+        # the paired panel: 1 weak + the expert per intent, one episode each, in both conditions
+        summary = r["checkpoints"][-1]["metrics"]
+        assert summary["pairs"] == 4
+        assert {"pass/weak/progress_gain", "stay/expert/progress_ratio"} <= set(summary)
+        infers = r["method"] != "dreamer"
+        assert ("intent_f1" in summary) == infers
+        steps = np.load(io.BytesIO(store.read_bytes(r["id"], "steps.npz")))
+        assert steps["terms"].shape[1] == 5 and ("y_hat" in steps) == infers
+        curve = [line for line in store.read_bytes(r["run_id"], "curve.jsonl").decode().splitlines()]
+        assert len(curve) >= 2 and '"assist/task"' in curve[-1]
+        assert ('"wm/intent_accuracy"' in curve[-1] or '"intent/accuracy"' in curve[-1]) == infers
+        assert {"acting/assistant", "acting/humans", "simulation", "learning", "evaluation"} <= set(r["time_shares"])
+        assert ("expert_filtering" in r["time_shares"]) and sum(r["time_shares"].values()) == pytest.approx(1, abs=1e-3)
+    # the methods' runs differ (different run keys) and the same command again is the stored result
+    assert len({r["id"] for r in results}) == len(methods)
+    again = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--json", store=pair_store)
+    assert again.code == 0 and again.json["assistants"][0]["cached"]
+    assert again.json["assistants"][0]["id"] == results[methods.index("dreamer")]["id"]
+    assert "reusing stored assistant" in " ".join(again.stderr.split())
+    assert store.verify() == []
+
+
+def test_resume_after_sigkill(cli, pair_store):
+    args = ["train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--seed", "1",
+            "--set", "assistant.env_steps=480", "--set", "assistant.checkpoints=4", "--json"]
+    cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(pair_store)]
+    earlier_states = set((Path(pair_store) / "runs").glob("*/state.pt"))
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    store = Store(pair_store)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        mine = [a for a in store.list("assistant") if a.labels["seed"] == 1]
+        if mine and set((Path(pair_store) / "runs").glob("*/state.pt")) - earlier_states:
+            break
+        time.sleep(0.2)
+    else:
+        proc.kill()
+        pytest.fail("no checkpoint appeared")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    res = cli(*args, store=pair_store)
+    assert res.code == 0, res.stderr
+    r = res.json["assistants"][0]
+    assert r["resumed_from_env_step"] is not None and r["resumed_from_env_step"] >= mine[0].labels["env_step"]
+    assert [c["env_step"] for c in r["checkpoints"]] == [120, 240, 360, 480]
+    assert r["checkpoints"][0]["id"] == mine[0].id
+    assert store.verify() == []
+
+
+def test_usage_errors_name_what_to_do(cli, pair_store):
+    res = cli("train-assistant", "--track", "straightaway", "--pair", "left-right", *SMOKE, "--json", store=pair_store)
+    assert res.code == 2
+    assert "d2a train-humans --intent left --track straightaway" in res.json["error"]["message"]
+    res = cli("train-assistant", "--track", "straightaway", "--pair", "pass-overtake", *SMOKE, "--json",
+              store=pair_store)
+    assert res.code == 2 and "pass-stay, left-right" in res.json["error"]["message"]
+    res = cli("train-assistant", *PAIR, "--method", "dream2asist", *SMOKE, "--json", store=pair_store)
+    assert res.code == 2 and "unknown method 'dream2asist'" in res.json["error"]["message"]
+    stay = Store(pair_store).resolve("humans/straightaway/stay")
+    res = cli("train-assistant", *PAIR, "--humans", stay, "--humans", stay, *SMOKE, "--json", store=pair_store)
+    assert res.code == 2 and "of intent 'stay', not 'pass'" in res.json["error"]["message"]
+    res = cli("train-assistant", *PAIR, "--humans", stay, *SMOKE, "--json", store=pair_store)
+    assert res.code == 2 and "one population per intent" in res.json["error"]["message"]
