@@ -102,17 +102,24 @@ _COMMON = [
 ]
 
 
-def with_common_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Add the global options to a leaf command; the command receives `run: RunContext`."""
+def with_common_options(func: Callable[..., Any] | None = None, *, seed: bool = True) -> Any:
+    """Add the global options to a leaf command; the command receives `run: RunContext`.
+    `seed=False` leaves `--seed` to the command itself (e.g. `eval`, whose `--seed` picks
+    assistants by their training seed and repeats)."""
+    if func is None:
+        return functools.partial(with_common_options, seed=seed)
+    common = [p for p in _COMMON if seed or p.name != "seed"]
     sig = inspect.signature(func, eval_str=True)  # resolve string annotations in func's module
     own = [p for p in sig.parameters.values() if p.name != "run"]
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        run = apply_options(*(kwargs.pop(p.name) for p in _COMMON))
+        values = {p.name: kwargs.pop(p.name) for p in common}
+        run = apply_options(values.get("store"), values.get("json_out", False), values.get("seed"),
+                            values.get("device"))
         return func(*args, run=run, **kwargs)
 
-    params = own + _COMMON
+    params = own + common
     wrapper.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
     wrapper.__annotations__ = {p.name: p.annotation for p in params}
     del wrapper.__wrapped__  # typer must see the new signature, not the wrapped one

@@ -56,6 +56,58 @@ def panel(populations: Sequence[Mapping[str, Any]], intents: Sequence[str], weak
     return out
 
 
+IMPERFECT_TARGETS = (0.0, 0.2, 0.4, 0.6, 0.8)
+"""Performance levels of the imperfect humans: every 20 % of the expert's, up to at least 75 %."""
+NEAR_PERFECT = 0.75
+"""Performance from which a checkpoint is near-perfect (the paper's 75 % threshold)."""
+
+
+@dataclass(frozen=True)
+class TestHuman:
+    """A human under test in `d2a eval`: a checkpoint, its group and its number in the group."""
+
+    id: str
+    intent: str
+    label: int
+    group: str  # "imperfect" (numbered 1-5, as in the paper's figures) or "near_perfect"
+    number: int
+    performance: float
+    env_step: int
+
+
+def select_humans(population: Mapping[str, Any], intent: str, label: int) -> list[TestHuman]:
+    """The paper's rule (its appendix, "checkpoints at every 20 % performance increment up to at
+    least 75 % of maximum, or the bottom five if none are under this threshold"), with performance
+    as `evaluation.criteria` defines it (0: the weakest checkpoint, 1: the expert):
+
+    - imperfect: for each level of `IMPERFECT_TARGETS` in turn, the checkpoint not yet taken
+      (the expert never) whose performance is nearest to it; when no checkpoint is below
+      `NEAR_PERFECT`, the five weakest instead;
+    - near-perfect: every other checkpoint at or above `NEAR_PERFECT`, the expert included.
+
+    Both groups are numbered by performance, weakest first."""
+    checkpoints = list(population["checkpoints"])
+    expert = next(k for k, c in enumerate(checkpoints) if c["id"] == population["expert"])
+    perf = performance_fractions(checkpoints, expert)
+    others = [k for k in range(len(checkpoints)) if k != expert]
+    if any(perf[k] < NEAR_PERFECT for k in others):
+        imperfect: list[int] = []
+        for target in IMPERFECT_TARGETS:
+            free = [k for k in others if k not in imperfect]
+            if not free:
+                break
+            imperfect.append(min(free, key=lambda k: (abs(perf[k] - target), perf[k], k)))
+    else:
+        imperfect = sorted(others, key=lambda k: (perf[k], k))[:len(IMPERFECT_TARGETS)]
+    near = [k for k in range(len(checkpoints)) if k not in imperfect and (perf[k] >= NEAR_PERFECT or k == expert)]
+    out = []
+    for group, chosen in (("imperfect", imperfect), ("near_perfect", near)):
+        for number, k in enumerate(sorted(chosen, key=lambda k: (perf[k], k)), start=1):
+            c = checkpoints[k]
+            out.append(TestHuman(c["id"], intent, label, group, number, round(float(perf[k]), 6), c["env_step"]))
+    return out
+
+
 def f1_macro(counts: np.ndarray) -> float:
     """Macro-averaged F1 of a confusion matrix `counts[true, predicted]` (classes never true
     and never predicted are left out)."""
@@ -68,6 +120,14 @@ def f1_macro(counts: np.ndarray) -> float:
             continue
         scores.append(2 * tp / (predicted + actual) if predicted + actual else 0.0)
     return float(np.mean(scores)) if scores else float("nan")
+
+
+def f1_of_class(counts: np.ndarray, k: int) -> float | None:
+    """F1 of class `k` (one against the rest) in a confusion matrix `counts[true, predicted]`;
+    None when the class is neither true nor predicted anywhere."""
+    counts = np.asarray(counts, np.float64)
+    denominator = counts[:, k].sum() + counts[k, :].sum()
+    return float(2 * counts[k, k] / denominator) if denominator else None
 
 
 def intent_confusion(rows: Sequence[Mapping[str, Any]], classes: int) -> np.ndarray:

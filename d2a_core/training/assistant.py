@@ -65,7 +65,7 @@ def parse_pair(pair: str) -> tuple[str, str]:
     return parts  # type: ignore[return-value]
 
 
-def _load_populations(store: Store, bundle: TrackBundle, intents: Sequence[str],
+def load_populations(store: Store, bundle: TrackBundle, intents: Sequence[str],
                       refs: Sequence[str] | None) -> list[tuple[str, dict[str, Any]]]:
     """(id, population.json) per intent of the pair, from `refs` or the default aliases."""
     if refs is not None and len(refs) != len(intents):
@@ -130,7 +130,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     cfg = method.configure(resolved.config, intents)
     ac = cfg.assistant
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
-    populations = _load_populations(store, bundle, intents, humans_refs)
+    populations = load_populations(store, bundle, intents, humans_refs)
     population_ids = [pid for pid, _ in populations]
     # the sections the method depends on, as patched by the method (intent head, reward weights)
     config_record = {name: getattr(cfg, name).model_dump(mode="json") for name in method.config_sections}
@@ -273,6 +273,24 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     state_path.unlink(missing_ok=True)
     store.release_run(key)
     return dict(result, run_id=writer.artifact.id, cached=False)
+
+
+def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "cpu"):
+    """A stored assistant checkpoint as a ready-to-act agent, with its method and pair:
+    (agent, method, intents). Its learner's config comes from the artifact's recorded config."""
+    from d2a_core.config.schema import Config  # the section classes, to validate the recorded one
+
+    art = store.get(ref)
+    if art.kind != "assistant":
+        raise UsageError(f"{ref} is a {art.kind} artifact, not an assistant")
+    method = get_method(art.labels["method"])
+    intents = parse_pair(art.labels["pair"])
+    section_type = type(getattr(Config(), method.agent_section))
+    section = section_type.model_validate(art.config[method.agent_section])
+    agent = method.builder()(section, obs_space, act_space, intents, 0, device)
+    state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
+    agent.load_state_dict(state)
+    return agent, method, intents
 
 
 def _episode_stats(episodes: list[dict[str, Any]], classes: int) -> dict[str, Any]:

@@ -1,0 +1,247 @@
+"""`d2a eval`: the paper's evaluation protocol on stored assistants and humans, paired.
+
+For a pair, the humans under test come from each intent's population by the paper's rule
+(`evaluation.paired.select_humans`: five imperfect humans at every 20 % of the expert's
+performance, and the near-perfect ones). Each human drives `episodes` episodes unassisted and,
+on the same env seeds (so the same start and opponent replay), with every assistant evaluated:
+the main method and its baselines, for each training seed. A difference between the two
+conditions of one spec is the assistant's doing. Humans act with their actor's mode, assistants
+with theirs.
+
+Per assistant an `evaluation` artifact holds every episode row of both conditions, the summary
+and the per-step log of the assisted episodes (the inferred intent's probability of the true
+intent at every step, both actions and the reward terms), with inputs: the assistant, the humans
+and the track. Alias `eval/<track>/<pair>/<method>/seed<k>` (with `/humans-<ids>` appended when
+`--humans` names other populations). An evaluation is deterministic, so an identical request
+returns the stored artifact.
+
+The env (env, reward, vehicle, world sections) is the one the assistants were trained in, read
+from their artifacts; assistants trained in different envs are not compared.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from d2a_core.artifacts import Store, canonical_json
+from d2a_core.errors import NotFoundError, UsageError
+from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
+from d2a_core.objectives.assistant import AssistantRewardConfig
+from d2a_core.sim.race_env import EnvConfig, RaceEnv
+from d2a_core.training.code_version import TRAINING_CODE_VERSION
+from d2a_core.training.humans import load_human, load_track_bundle
+from d2a_core.training.methods import get_method
+from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCollector
+
+EVAL_FORMAT = 1
+METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s")
+"""The paper's Table 1 metrics, per human: means over its episodes; `return` is under the human's
+own objective (r^task + r^intent)."""
+ENV_SECTIONS = ("env", "reward", "vehicle", "world")
+SEED_BASE = 50_000_017  # env seeds of evaluation episodes: SEED_BASE + 1000 * eval_seed + j
+
+ProgressFn = Callable[[dict[str, Any]], None]
+
+
+def assistant_alias(track: str, pair: str, method: str, seed: int) -> str:
+    return f"assistants/{track}/{pair}/{method}/seed{seed}"
+
+
+def stored_seeds(store: Store, track: str, pair: str, method: str) -> list[int]:
+    """Training seeds with a stored assistant of this track, pair and method."""
+    prefix = assistant_alias(track, pair, method, 0)[:-1]
+    return sorted(int(a[len(prefix):]) for a in store.refs() if a.startswith(prefix) and a[len(prefix):].isdigit())
+
+
+def _assistants(store: Store, track: str, pair: str, names: Sequence[str],
+                seeds: Sequence[int] | None) -> list[tuple[str, int, str]]:
+    """(method, seed, assistant id) for every method and seed asked for."""
+    out = []
+    for name in names:
+        get_method(name)
+        chosen = list(seeds) if seeds else stored_seeds(store, track, pair, name)
+        if not chosen:
+            raise NotFoundError(f"no stored {name} assistant for {track} {pair}; make one with: "
+                                f"d2a train-assistant --track {track} --pair {pair} --method {name} --seed 0")
+        for seed in chosen:
+            alias = assistant_alias(track, pair, name, seed)
+            try:
+                out.append((name, seed, store.resolve(alias)))
+            except NotFoundError:
+                raise NotFoundError(f"no assistant {alias!r} in store {store.root}; make it with: "
+                                    f"d2a train-assistant --track {track} --pair {pair} --method {name} "
+                                    f"--seed {seed}") from None
+    return out
+
+
+def _stats(values: Sequence[float]) -> dict[str, float | None]:
+    values = [v for v in values if v is not None]
+    if not values:
+        return {"mean": None, "std": None}
+    return {"mean": round(float(np.mean(values)), 6), "std": round(float(np.std(values)), 6)}
+
+
+def _per_human(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted: Sequence[dict]) -> list[dict]:
+    base = {(r["human"], r["seed"]): r for r in unassisted}
+    out = []
+    for h, human in enumerate(humans):
+        mine = [(base[(r["human"], r["seed"])], r) for r in assisted if r["human"] == h]
+        u = {m: round(float(np.mean([x[m] for x, _ in mine])), 6) for m in METRICS}
+        a = {m: round(float(np.mean([y[m] for _, y in mine])), 6) for m in METRICS}
+        row = {**vars(human), "episodes": len(mine), "unassisted": u, "assisted": a,
+               "delta": {m: round(a[m] - u[m], 6) for m in METRICS}}
+        accuracy = [y["intent_accuracy"] for _, y in mine if "intent_accuracy" in y]
+        if accuracy:
+            row["intent_accuracy"] = round(float(np.mean(accuracy)), 6)
+        out.append(row)
+    return out
+
+
+def summarise(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted: Sequence[dict],
+              intents: Sequence[str]) -> dict[str, Any]:
+    """Per intent and group, mean and std over humans of each metric's change (assisted minus
+    unassisted, per human over its paired episodes); per-class and macro per-step intent F1."""
+    per_human = _per_human(humans, unassisted, assisted)
+    counts = intent_confusion(assisted, len(intents))
+    has_estimate = bool(counts.sum())
+    out: dict[str, Any] = {"intents": {}, "humans": per_human,
+                           "intent_f1": round(f1_macro(counts), 6) if has_estimate else None,
+                           "intent_confusion": counts.tolist() if has_estimate else None}
+    for label, intent in enumerate(intents):
+        block: dict[str, Any] = {}
+        for group in ("imperfect", "near_perfect"):
+            rows = [r for r in per_human if r["intent"] == intent and r["group"] == group]
+            if rows:
+                block[group] = {m: _stats([r["delta"][m] for r in rows]) for m in METRICS}
+        f1 = f1_of_class(counts, label) if has_estimate else None
+        block["intent_f1"] = None if f1 is None else round(f1, 6)
+        out["intents"][intent] = block
+    return out
+
+
+def _run(humans: Sequence[TestHuman], agents: dict[str, Any], intents: Sequence[str], make_env, episodes: int,
+         eval_seed: int, n_envs: int, assistant=None) -> tuple[list[dict], list[dict]]:
+    """Every human's `episodes` specs (grouped by human, so a batch holds few distinct humans);
+    rows in spec order, and per-step logs when assisted."""
+    specs = [EpisodeSpec(seed=SEED_BASE + 1000 * eval_seed + j, human=h, label=humans[h].label)
+             for h in range(len(humans)) for j in range(episodes)]
+    queue = iter(specs)
+    envs = [make_env() for _ in range(max(1, min(n_envs, len(specs))))]
+    drivers = HumanDrivers([agents[h.id] for h in humans], len(envs), explore=False, seed=0)
+    try:
+        # no expert terms in evaluation: the metrics are the human's, not the assistant's reward
+        collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
+                                    reward_config=AssistantRewardConfig(alpha_r=0.0, alpha_a=0.0),
+                                    keep_steps=assistant is not None, label_field=None)
+        rows: list[dict] = []
+        while not collector.idle:
+            rows.extend(collector.step(explore=False, learn=False))
+    finally:
+        for env in envs:
+            env.close()
+    order = {(s.human, s.seed): k for k, s in enumerate(specs)}
+    rows.sort(key=lambda r: order[(r["human"], r["seed"])])
+    logs = [r.pop("steps_log") for r in rows if "steps_log" in r]
+    return rows, logs
+
+
+def _steps_npz(rows: Sequence[dict], logs: Sequence[dict]) -> bytes:
+    """Per-step arrays of the assisted episodes, concatenated (`episode`: row index)."""
+    arrays: dict[str, np.ndarray] = {
+        "episode": np.concatenate([np.full(len(log["terms"]), k, np.int32) for k, log in enumerate(logs)]),
+        "label": np.concatenate([np.full(len(log["terms"]), r["label"], np.int8) for r, log in zip(rows, logs)]),
+        "human_action": np.concatenate([np.asarray(log["human_action"], np.float32).reshape(-1, 2) for log in logs]),
+        "assistant_action": np.concatenate([np.asarray(log["assistant_action"], np.float32).reshape(-1, 2)
+                                            for log in logs]),
+    }
+    if all(len(log["y_hat"]) == len(log["terms"]) for log in logs):
+        arrays["y_hat"] = np.concatenate([np.asarray(log["y_hat"], np.int8) for log in logs])
+        arrays["p_true"] = np.concatenate([np.asarray(log["p_true"], np.float32) for log in logs])
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def evaluate(store: Store, track_ref: str, pair: str, method: str = "dream2assist", baselines: Sequence[str] = (),
+             seeds: Sequence[int] | None = None, humans: Sequence[str] | None = None, episodes: int = 20,
+             eval_seed: int = 0, n_envs: int = 8, device: str = "cpu",
+             progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Evaluate `method` and `baselines` (every stored seed unless `seeds`); see the module docstring."""
+    if episodes < 1:
+        raise UsageError(f"--episodes must be at least 1, got {episodes}")
+    with store.lease():
+        return _evaluate(store, track_ref, pair, [method, *baselines], seeds, humans, episodes, eval_seed, n_envs,
+                         device, progress)
+
+
+def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress):
+    from d2a_core.config.schema import Config
+    from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
+
+    intents = parse_pair(pair)
+    if len(set(names)) != len(names):
+        raise UsageError(f"a method is named twice: {', '.join(names)}")
+    bundle0 = load_track_bundle(store, track_ref, EnvConfig().dt)
+    track = bundle0.track.name
+    found = _assistants(store, track, pair, names, seeds)
+    env_record = {k: store.get(found[0][2]).config[k] for k in ENV_SECTIONS}
+    for name, seed, art_id in found[1:]:
+        if {k: store.get(art_id).config[k] for k in ENV_SECTIONS} != env_record:
+            raise UsageError(f"{name} seed {seed} was trained in another env config than {found[0][0]} seed "
+                             f"{found[0][1]}; evaluate them separately")
+    cfg = Config.model_validate(env_record)
+    bundle = load_track_bundle(store, track_ref, cfg.env.dt)
+    populations = load_populations(store, bundle, intents, humans_refs)
+    test_humans = [h for label, (_, pop) in enumerate(populations) for h in select_humans(pop, intents[label], label)]
+
+    def make_env() -> RaceEnv:
+        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
+                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+
+    probe = make_env()
+    obs_space, act_space = probe.observation_space, probe.action_space
+    probe.close()
+    human_ids = [h.id for h in test_humans]
+    population_ids = [pid for pid, _ in populations]
+    suffix = "" if humans_refs is None else "/humans-" + "-".join(p[:8] for p in population_ids)
+    agents: dict[str, Any] = {}
+    unassisted: list[dict] | None = None
+    results = []
+    for k, (name, seed, art_id) in enumerate(found):
+        identity = {"format": EVAL_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id, "humans": human_ids,
+                    "episodes": episodes, "eval_seed": eval_seed, "env": env_record}
+        key = hashlib.sha256(canonical_json(identity)).hexdigest()
+        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key]
+        if done:
+            result = store.read_json(done[-1].id, "eval.json")["result"]
+            results.append(dict(result, id=done[-1].id, cached=True))
+            continue
+        if unassisted is None:
+            agents = {hid: load_human(store, hid, obs_space, act_space, device) for hid in dict.fromkeys(human_ids)}
+            if progress:
+                progress({"stage": "unassisted", "done": 0, "total": len(found) + 1})
+            unassisted, _ = _run(test_humans, agents, intents, make_env, episodes, eval_seed, n_envs)
+        if progress:
+            progress({"stage": f"{name} seed {seed}", "done": k + 1, "total": len(found) + 1})
+        assistant, _, assistant_intents = load_assistant(store, art_id, obs_space, act_space, device)
+        if tuple(assistant_intents) != tuple(intents):
+            raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(assistant_intents)}, not {pair}")
+        assisted, logs = _run(test_humans, agents, intents, make_env, episodes, eval_seed, n_envs, assistant)
+        summary = summarise(test_humans, unassisted, assisted, intents)
+        result = {"method": name, "seed": seed, "assistant": art_id, "track": track, "pair": pair,
+                  "populations": population_ids, "episodes_per_human": episodes, "eval_seed": eval_seed,
+                  **summary}
+        with store.create("evaluation", inputs=[art_id, *dict.fromkeys(human_ids), bundle.track_id, *population_ids],
+                          config=env_record, seed=eval_seed,
+                          labels={"track": track, "pair": pair, "method": name, "seed": seed, "run_key": key}) as writer:
+            writer.add_json("eval.json", {"result": result, "unassisted": unassisted, "assisted": assisted})
+            writer.add_bytes("steps.npz", _steps_npz(assisted, logs))
+        result = dict(result, id=writer.artifact.id)
+        store.tag(writer.artifact.id, f"eval/{track}/{pair}/{name}/seed{seed}{suffix}")
+        results.append(dict(result, cached=False))
+    return {"evaluations": results}
