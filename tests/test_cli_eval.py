@@ -1,0 +1,162 @@
+"""`d2a eval`: the selection rule, pairing (a zero assistant changes nothing), the JSON shape,
+the stored evaluation, and errors that name what to run."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+from d2a_core.artifacts import Store
+from d2a_core.evaluation.paired import select_humans
+from d2a_core.pipelines.evaluate import METRICS, evaluate
+
+from d2a_test_helpers import run_cli
+
+SMOKE = ("--preset", "smoke")
+PAIR = ("--track", "straightaway", "--pair", "pass-stay")
+
+
+@pytest.fixture(scope="module")
+def eval_store(tmp_path_factory):
+    store = tmp_path_factory.mktemp("eval") / "store"
+    assert run_cli("make-track", "straightaway", *SMOKE, "--json", store=store).code == 0
+    res = run_cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE,
+                  "--set", "humans.checkpoints=4", "--json", store=store)
+    assert res.code == 0, res.stderr
+    res = run_cli("train-assistant", *PAIR, "--method", "dream2assist", "--method", "dreamer", *SMOKE, "--json",
+                  store=store)
+    assert res.code == 0, res.stderr
+    return store
+
+
+def synthetic(returns, expert):
+    cps = [{"id": f"c{k}", "env_step": k, "metrics": {"return": r}} for k, r in enumerate(returns)]
+    return {"expert": f"c{expert}", "checkpoints": cps}
+
+
+def test_selection_rule_on_a_synthetic_population():
+    # performance = return / 100 here (weakest 0, expert 100)
+    pop = synthetic([0, 5, 18, 25, 41, 55, 62, 79, 85, 95, 100], expert=10)
+    chosen = select_humans(pop, "pass", 0)
+    imperfect = [h.id for h in chosen if h.group == "imperfect"]
+    near = [h.id for h in chosen if h.group == "near_perfect"]
+    # nearest to 0, 0.2, 0.4, 0.6, 0.8 in turn, numbered by performance
+    assert imperfect == ["c0", "c2", "c4", "c6", "c7"]
+    assert [h.number for h in chosen if h.group == "imperfect"] == [1, 2, 3, 4, 5]
+    assert near == ["c8", "c9", "c10"]  # >= 75 % and not imperfect, the expert included
+    # performance is relative to the weakest checkpoint: a tight population still spans 0..1
+    top = select_humans(synthetic([80, 90, 85, 95, 99, 97, 100], expert=6), "stay", 1)
+    assert [h.id for h in top if h.group == "imperfect"] == ["c0", "c2", "c1", "c3", "c5"]  # 0 .25 .5 .75 .85
+    assert [h.id for h in top if h.group == "near_perfect"] == ["c4", "c6"]
+    # an expert that is the weakest (every checkpoint returns the same): nothing under 75 %, the five weakest
+    flat = select_humans(synthetic([5, 5, 5, 5, 5, 5, 5], expert=6), "stay", 1)
+    assert [h.id for h in flat if h.group == "imperfect"] == ["c0", "c1", "c2", "c3", "c4"]
+    few = select_humans(synthetic([10, 100], expert=1), "stay", 1)
+    assert [(h.id, h.group) for h in few] == [("c0", "imperfect"), ("c1", "near_perfect")]
+
+
+class ZeroAssistant:
+    """Always a_A = 0, no intent estimate."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def initial_state(self, n):
+        return None
+
+    def policy(self, obs_batch, state=None, explore=True):
+        self.calls += 1
+        return np.zeros((len(obs_batch["obs"]), 2), np.float32), state
+
+    def intent_probs(self, state):
+        return None
+
+    def observe(self, transition):
+        raise AssertionError("evaluation must not train")
+
+    def updates_due(self, env_steps):
+        return 0
+
+    def train_step(self):
+        return {}
+
+    def state_dict(self, include_replay=False):
+        return {}
+
+    def load_state_dict(self, state):
+        pass
+
+
+def test_an_assistant_that_outputs_zeros_changes_nothing(eval_store, monkeypatch):
+    """Pairing: the same specs unassisted and with a zero assistant give identical episodes."""
+    zero = ZeroAssistant()
+    monkeypatch.setattr("d2a_core.training.assistant.load_assistant",
+                        lambda store, ref, o, a, device="cpu": (zero, None, ("pass", "stay")))
+    out = evaluate(Store(eval_store), "straightaway", "pass-stay", method="dreamer", episodes=2, n_envs=3)
+    e = out["evaluations"][0]
+    assert zero.calls > 0 and e["humans"]
+    for human in e["humans"]:
+        assert human["episodes"] == 2
+        assert all(human["delta"][m] == 0.0 for m in METRICS), human
+        assert human["unassisted"] == human["assisted"]
+    for block in e["intents"].values():
+        for group in ("imperfect", "near_perfect"):
+            if group in block:
+                assert all(block[group][m] == {"mean": 0.0, "std": 0.0} for m in METRICS)
+
+
+def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store):
+    res = cli("eval", *PAIR, "--baseline", "dreamer", "--episodes", "2", "--json", store=eval_store)
+    assert res.code == 0, res.stderr
+    evals = res.json["evaluations"]
+    assert [(e["method"], e["seed"]) for e in evals] == [("dream2assist", 0), ("dreamer", 0)]
+    store = Store(eval_store)
+    for e in evals:
+        assert e["assistant"] == store.resolve(f"assistants/straightaway/pass-stay/{e['method']}/seed0")
+        for intent in ("pass", "stay"):
+            block = e["intents"][intent]
+            assert set(block["imperfect"]) == set(METRICS)
+            assert set(block["imperfect"]["progress_m"]) == {"mean", "std"}
+            assert (block["intent_f1"] is None) == (e["method"] == "dreamer")
+        groups = {(h["intent"], h["group"]) for h in e["humans"]}
+        assert ("pass", "imperfect") in groups and ("stay", "near_perfect") in groups
+        for h in e["humans"]:
+            assert set(h) >= {"id", "intent", "group", "unassisted", "assisted", "delta"}
+            assert h["delta"]["progress_m"] == pytest.approx(h["assisted"]["progress_m"] - h["unassisted"]["progress_m"],
+                                                             abs=1e-5)
+        art = store.get(e["id"])
+        assert art.kind == "evaluation" and e["assistant"] in art.inputs
+        assert set(h["id"] for h in e["humans"]) <= set(art.inputs)
+        assert store.resolve(f"eval/straightaway/pass-stay/{e['method']}/seed0") == e["id"]
+        stored = store.read_json(e["id"], "eval.json")
+        # pairing: every assisted episode has an unassisted twin with the same seed and opponent replay
+        twins = {(r["human"], r["seed"]): r for r in stored["unassisted"]}
+        for r in stored["assisted"]:
+            assert twins[(r["human"], r["seed"])]["label"] == r["label"]
+        steps = np.load(io.BytesIO(store.read_bytes(e["id"], "steps.npz")))
+        assert ("p_true" in steps) == (e["method"] != "dreamer")
+    d2a = evals[0]
+    assert d2a["intent_f1"] is not None and len(d2a["intent_confusion"]) == 2
+    again = cli("eval", *PAIR, "--seed", "0", "--episodes", "2", "--json", store=eval_store)
+    assert again.code == 0 and again.json["evaluations"][0]["cached"]
+    assert again.json["evaluations"][0]["id"] == d2a["id"]
+
+
+def test_eval_errors_name_what_to_run(cli, eval_store):
+    res = cli("eval", *PAIR, "--seed", "3", "--json", store=eval_store)
+    assert res.code == 2
+    assert "d2a train-assistant --track straightaway --pair pass-stay --method dream2assist --seed 3" in \
+        res.json["error"]["message"]
+    res = cli("eval", *PAIR, "--baseline", "no-rssm", "--json", store=eval_store)
+    assert res.code == 2 and "--method no-rssm" in res.json["error"]["message"]
+    res = cli("eval", *PAIR, "--baseline", "dreamr", "--json", store=eval_store)
+    assert res.code == 2 and "unknown method 'dreamr'" in res.json["error"]["message"]
+    res = cli("eval", "--track", "straightaway", "--pair", "left-right", "--json", store=eval_store)
+    assert res.code == 2 and "left-right" in res.json["error"]["message"]
+    res = cli("eval", *PAIR, "--episodes", "0", "--json", store=eval_store)
+    assert res.code == 2 and "--episodes" in res.stderr + res.stdout
+    res = cli("eval", *PAIR, "--humans", "nonexistent", "--humans", "humans/straightaway/stay", "--json",
+              store=eval_store)
+    assert res.code == 2 and "nonexistent" in res.json["error"]["message"]
