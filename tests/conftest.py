@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from d2a_test_helpers import run_cli
+from d2a_test_helpers import copy_store, run_cli
 
 
 @pytest.fixture
@@ -17,3 +17,30 @@ def cli():
 @pytest.fixture
 def store_dir(tmp_path: Path) -> Path:
     return tmp_path / "store"
+
+
+@pytest.fixture(scope="session")
+def pair_store_template(tmp_path_factory) -> Path:
+    """A smoke store with the straightaway and pass/stay populations of 4 checkpoints each, made
+    once per session; copy it (`copy_store`) before changing it."""
+    store = tmp_path_factory.mktemp("pair-template") / "store"
+    res = run_cli("make-track", "straightaway", "--preset", "smoke", "--json", store=store)
+    assert res.code == 0, res.stderr
+    res = run_cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway",
+                  "--preset", "smoke", "--set", "humans.checkpoints=4", "--json", store=store)
+    assert res.code == 0, res.stderr
+    return store
+
+
+@pytest.fixture(scope="session")
+def trained_assistants(pair_store_template, tmp_path_factory):
+    """(store, result JSON) of `train-assistant` with every implemented method on a copy of the
+    pair store (smoke), made once per session."""
+    from d2a_core.training.methods import method_names
+
+    store = copy_store(pair_store_template, tmp_path_factory.mktemp("assistants"))
+    methods = method_names(implemented_only=True)
+    res = run_cli("train-assistant", "--track", "straightaway", "--pair", "pass-stay",
+                  *(a for m in methods for a in ("--method", m)), "--preset", "smoke", "--json", store=store)
+    assert res.code == 0, res.stderr
+    return store, res.json

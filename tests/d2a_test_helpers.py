@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -33,3 +34,10 @@ def run_cli(*args: str, store: Path | None = None, timeout: float = 300, env: di
     return CliResult(proc.returncode, proc.stdout, proc.stderr)
 
 
+
+
+def copy_store(store: Path, parent: Path) -> Path:
+    """A copy of a whole store under `parent` (tests that change a shared store change a copy)."""
+    target = parent / "store"
+    shutil.copytree(store, target)
+    return target

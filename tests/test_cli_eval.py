@@ -12,23 +12,15 @@ from d2a_core.artifacts import Store
 from d2a_core.evaluation.paired import select_humans
 from d2a_core.pipelines.evaluate import METRICS, evaluate
 
-from d2a_test_helpers import run_cli
+from d2a_test_helpers import copy_store
 
 SMOKE = ("--preset", "smoke")
 PAIR = ("--track", "straightaway", "--pair", "pass-stay")
 
 
 @pytest.fixture(scope="module")
-def eval_store(tmp_path_factory):
-    store = tmp_path_factory.mktemp("eval") / "store"
-    assert run_cli("make-track", "straightaway", *SMOKE, "--json", store=store).code == 0
-    res = run_cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE,
-                  "--set", "humans.checkpoints=4", "--json", store=store)
-    assert res.code == 0, res.stderr
-    res = run_cli("train-assistant", *PAIR, "--method", "dream2assist", "--method", "dreamer", *SMOKE, "--json",
-                  store=store)
-    assert res.code == 0, res.stderr
-    return store
+def eval_store(trained_assistants, tmp_path_factory):
+    return copy_store(trained_assistants[0], tmp_path_factory.mktemp("eval"))
 
 
 def synthetic(returns, expert):
@@ -149,6 +141,7 @@ def test_eval_errors_name_what_to_run(cli, eval_store):
     assert res.code == 2
     assert "d2a train-assistant --track straightaway --pair pass-stay --method dream2assist --seed 3" in \
         res.json["error"]["message"]
+    Store(eval_store).untag("assistants/straightaway/pass-stay/no-rssm/seed0")
     res = cli("eval", *PAIR, "--baseline", "no-rssm", "--json", store=eval_store)
     assert res.code == 2 and "--method no-rssm" in res.json["error"]["message"]
     res = cli("eval", *PAIR, "--baseline", "dreamr", "--json", store=eval_store)

@@ -16,30 +16,23 @@ import pytest
 from d2a_core.artifacts import Store
 from d2a_core.training.methods import method_names
 
-from d2a_test_helpers import REPO, run_cli
+from d2a_test_helpers import REPO, copy_store
 
 SMOKE = ("--preset", "smoke")
 PAIR = ("--track", "straightaway", "--pair", "pass-stay")
 
 
 @pytest.fixture(scope="module")
-def pair_store(tmp_path_factory):
-    store = tmp_path_factory.mktemp("assistant") / "store"
-    assert run_cli("make-track", "straightaway", *SMOKE, "--json", store=store).code == 0
-    res = run_cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json",
-                  store=store)
-    assert res.code == 0, res.stderr
-    return store
+def pair_store(trained_assistants, tmp_path_factory):
+    return copy_store(trained_assistants[0], tmp_path_factory.mktemp("assistant"))
 
 
-def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, pair_store):
+def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trained_assistants):
+    pair_store, result = trained_assistants
     methods = method_names(implemented_only=True)
-    res = cli("train-assistant", *PAIR, *(a for m in methods for a in ("--method", m)), *SMOKE, "--json",
-              store=pair_store)
-    assert res.code == 0, res.stderr
     store = Store(pair_store)
     pops = [store.resolve("humans/straightaway/pass"), store.resolve("humans/straightaway/stay")]
-    results = res.json["assistants"]
+    results = result["assistants"]
     assert [r["method"] for r in results] == methods
     for r in results:
         assert not r["cached"] and r["pair"] == "pass-stay" and r["populations"] == pops
