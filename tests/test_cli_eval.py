@@ -11,6 +11,7 @@ import pytest
 from d2a_core.artifacts import Store
 from d2a_core.evaluation.paired import select_humans
 from d2a_core.pipelines.evaluate import METRICS, evaluate
+from d2a_core.sim.episode_log_reader import read_episode
 
 from d2a_test_helpers import copy_store
 
@@ -99,7 +100,7 @@ def test_an_assistant_that_outputs_zeros_changes_nothing(eval_store, monkeypatch
                 assert all(block[group][m] == {"mean": 0.0, "std": 0.0} for m in METRICS)
 
 
-def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store):
+def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store, tmp_path):
     res = cli("eval", *PAIR, "--baseline", "dreamer", "--episodes", "2", "--json", store=eval_store)
     assert res.code == 0, res.stderr
     evals = res.json["evaluations"]
@@ -131,6 +132,23 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
         assert ("p_true" in steps) == (e["method"] != "dreamer")
     d2a = evals[0]
     assert d2a["intent_f1"] is not None and len(d2a["intent_confusion"]) == 2
+    # every episode of both conditions is an MCAP log in the evaluation: read one back after export
+    stored = store.read_json(d2a["id"], "eval.json")
+    logs = [name for name in store.get(d2a["id"]).files if name.endswith(".mcap")]
+    assert len(logs) == len(stored["assisted"]) + len(stored["unassisted"])
+    out = cli("artifacts", "export", d2a["id"], str(tmp_path / "out"), store=eval_store)
+    assert out.code == 0, out.stderr
+    row = stored["assisted"][0]
+    episode = read_episode(tmp_path / "out" / "episodes" / "assisted" / f"human{row['human']:03d}-seed{row['seed']}.mcap")
+    assert len(episode) == row["steps"] + 1  # the reset observation and every step
+    assistant = episode.state["assistant"]
+    probs = assistant["intent_probs.pass"][1:] + assistant["intent_probs.stay"][1:]
+    np.testing.assert_allclose(probs, 1.0, atol=1e-5)
+    assert set(assistant["true_intent"]) == {row["intent"]}
+    assert {"human_action.steer", "assistant_action.accel", "applied_action.steer", "ds", "de", "speed",
+            "reward_terms.task"} <= set(episode.state["ego"])
+    assert episode.metadata["condition"] == "assisted" and episode.metadata["method"] == "dream2assist"
+    assert episode.metadata["seed"] == row["seed"] and "ego" in episode.poses
     again = cli("eval", *PAIR, "--seed", "0", "--episodes", "2", "--json", store=eval_store)
     assert again.code == 0 and again.json["evaluations"][0]["cached"]
     assert again.json["evaluations"][0]["id"] == d2a["id"]

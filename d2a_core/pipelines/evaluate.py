@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import hashlib
 import io
-from collections.abc import Callable, Sequence
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -125,9 +127,11 @@ def summarise(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted:
 
 
 def _run(humans: Sequence[TestHuman], agents: dict[str, Any], intents: Sequence[str], make_env, episodes: int,
-         eval_seed: int, n_envs: int, assistant=None) -> tuple[list[dict], list[dict]]:
+         eval_seed: int, n_envs: int, log_dir: Path, assistant=None,
+         log_metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
     """Every human's `episodes` specs (grouped by human, so a batch holds few distinct humans);
-    rows in spec order, and per-step logs when assisted."""
+    rows in spec order, and per-step logs when assisted. Each episode's MCAP log goes to
+    `log_dir` (its path in the row's `log`)."""
     specs = [EpisodeSpec(seed=SEED_BASE + 1000 * eval_seed + j, human=h, label=humans[h].label)
              for h in range(len(humans)) for j in range(episodes)]
     queue = iter(specs)
@@ -137,10 +141,14 @@ def _run(humans: Sequence[TestHuman], agents: dict[str, Any], intents: Sequence[
         # no expert terms in evaluation: the metrics are the human's, not the assistant's reward
         collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
                                     reward_config=AssistantRewardConfig(alpha_r=0.0, alpha_a=0.0),
-                                    keep_steps=assistant is not None, label_field=None)
-        rows: list[dict] = []
-        while not collector.idle:
-            rows.extend(collector.step(explore=False, learn=False))
+                                    keep_steps=assistant is not None, label_field=None, log_dir=log_dir,
+                                    log_metadata=log_metadata)
+        try:
+            rows: list[dict] = []
+            while not collector.idle:
+                rows.extend(collector.step(explore=False, learn=False))
+        finally:
+            collector.close()
     finally:
         for env in envs:
             env.close()
@@ -179,69 +187,119 @@ def evaluate(store: Store, track_ref: str, pair: str, method: str = "dream2assis
                          device, progress)
 
 
+class _Session:
+    """What every assistant of one `d2a eval` call shares: the env, the humans under test, their
+    loaded agents and (once run) their unassisted episodes."""
+
+    def __init__(self, store: Store, track_ref: str, pair: str, intents: tuple[str, ...], env_record: dict,
+                 humans_refs: Sequence[str] | None, episodes: int, eval_seed: int, n_envs: int, device: str,
+                 log_root: Path) -> None:
+        from d2a_core.config.schema import Config
+        from d2a_core.training.assistant import load_populations
+
+        self.store, self.pair, self.intents = store, pair, intents
+        self.env_record, self.episodes, self.eval_seed, self.n_envs, self.device = (
+            env_record, episodes, eval_seed, n_envs, device)
+        self.log_root = log_root
+        self.cfg = Config.model_validate(env_record)
+        self.bundle = load_track_bundle(store, track_ref, self.cfg.env.dt)
+        self.track = self.bundle.track.name
+        populations = load_populations(store, self.bundle, intents, humans_refs)
+        self.population_ids = [pid for pid, _ in populations]
+        self.humans = [h for label, (_, pop) in enumerate(populations)
+                       for h in select_humans(pop, intents[label], label)]
+        self.human_ids = [h.id for h in self.humans]
+        self.alias_suffix = "" if humans_refs is None else "/humans-" + "-".join(p[:8] for p in self.population_ids)
+        probe = self.make_env()
+        self.obs_space, self.act_space = probe.observation_space, probe.action_space
+        probe.close()
+        self._agents: dict[str, Any] | None = None
+        self._unassisted: list[dict] | None = None
+
+    def make_env(self) -> RaceEnv:
+        cfg = self.cfg
+        return RaceEnv(self.bundle.track, self.bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
+                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+
+    def run(self, name: str, assistant=None, metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
+        if self._agents is None:
+            self._agents = {hid: load_human(self.store, hid, self.obs_space, self.act_space, self.device)
+                            for hid in dict.fromkeys(self.human_ids)}
+        return _run(self.humans, self._agents, self.intents, self.make_env, self.episodes, self.eval_seed,
+                    self.n_envs, self.log_root / name, assistant, {"track": self.track, **(metadata or {})})
+
+    def unassisted(self) -> list[dict]:
+        if self._unassisted is None:
+            self._unassisted, _ = self.run("unassisted", metadata={"condition": "unassisted"})
+        return self._unassisted
+
+    def run_key(self, art_id: str) -> str:
+        identity = {"format": EVAL_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,
+                    "humans": self.human_ids, "episodes": self.episodes, "eval_seed": self.eval_seed,
+                    "env": self.env_record}
+        return hashlib.sha256(canonical_json(identity)).hexdigest()
+
+    def evaluate(self, name: str, seed: int, art_id: str) -> dict[str, Any]:
+        """One assistant's evaluation, stored (or the stored one, `cached`)."""
+        from d2a_core.training.assistant import load_assistant
+
+        store = self.store
+        key = self.run_key(art_id)
+        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key]
+        if done:
+            return dict(store.read_json(done[-1].id, "eval.json")["result"], id=done[-1].id, cached=True)
+        unassisted = self.unassisted()
+        assistant, _, trained_on = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
+        if tuple(trained_on) != tuple(self.intents):
+            raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(trained_on)}, not {self.pair}")
+        assisted, step_logs = self.run(f"{name}-seed{seed}", assistant, {
+            "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id})
+        result = {"method": name, "seed": seed, "assistant": art_id, "track": self.track, "pair": self.pair,
+                  "populations": self.population_ids, "episodes_per_human": self.episodes,
+                  "eval_seed": self.eval_seed, **summarise(self.humans, unassisted, assisted, self.intents)}
+        inputs = [art_id, *dict.fromkeys(self.human_ids), self.bundle.track_id, *self.population_ids]
+        labels = {"track": self.track, "pair": self.pair, "method": name, "seed": seed, "run_key": key}
+        with store.create("evaluation", inputs=inputs, config=self.env_record, seed=self.eval_seed,
+                          labels=labels) as writer:
+            writer.add_json("eval.json", {"result": result, "unassisted": [_stored(r) for r in unassisted],
+                                          "assisted": [_stored(r) for r in assisted]})
+            writer.add_bytes("steps.npz", _steps_npz(assisted, step_logs))
+            for condition, rows in (("unassisted", unassisted), ("assisted", assisted)):
+                for r in rows:
+                    writer.add_file(_log_name(condition, r), r["log"])
+        store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{self.alias_suffix}")
+        return dict(result, id=writer.artifact.id, cached=False)
+
+
+def _log_name(condition: str, row: Mapping[str, Any]) -> str:
+    """Where an episode's MCAP log lies inside the evaluation artifact."""
+    return f"episodes/{condition}/human{row['human']:03d}-seed{row['seed']}.mcap"
+
+
+def _stored(row: Mapping[str, Any]) -> dict[str, Any]:
+    """An episode row as stored: its log named by its place in the artifact, not a temp path."""
+    return {k: v for k, v in row.items() if k != "log"}
+
+
 def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress):
-    from d2a_core.config.schema import Config
-    from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
+    from d2a_core.training.assistant import parse_pair
 
     intents = parse_pair(pair)
     if len(set(names)) != len(names):
         raise UsageError(f"a method is named twice: {', '.join(names)}")
-    bundle0 = load_track_bundle(store, track_ref, EnvConfig().dt)
-    track = bundle0.track.name
+    track = load_track_bundle(store, track_ref, EnvConfig().dt).track.name
     found = _assistants(store, track, pair, names, seeds)
     env_record = {k: store.get(found[0][2]).config[k] for k in ENV_SECTIONS}
     for name, seed, art_id in found[1:]:
         if {k: store.get(art_id).config[k] for k in ENV_SECTIONS} != env_record:
             raise UsageError(f"{name} seed {seed} was trained in another env config than {found[0][0]} seed "
                              f"{found[0][1]}; evaluate them separately")
-    cfg = Config.model_validate(env_record)
-    bundle = load_track_bundle(store, track_ref, cfg.env.dt)
-    populations = load_populations(store, bundle, intents, humans_refs)
-    test_humans = [h for label, (_, pop) in enumerate(populations) for h in select_humans(pop, intents[label], label)]
-
-    def make_env() -> RaceEnv:
-        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
-
-    probe = make_env()
-    obs_space, act_space = probe.observation_space, probe.action_space
-    probe.close()
-    human_ids = [h.id for h in test_humans]
-    population_ids = [pid for pid, _ in populations]
-    suffix = "" if humans_refs is None else "/humans-" + "-".join(p[:8] for p in population_ids)
-    agents: dict[str, Any] = {}
-    unassisted: list[dict] | None = None
     results = []
-    for k, (name, seed, art_id) in enumerate(found):
-        identity = {"format": EVAL_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id, "humans": human_ids,
-                    "episodes": episodes, "eval_seed": eval_seed, "env": env_record}
-        key = hashlib.sha256(canonical_json(identity)).hexdigest()
-        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key]
-        if done:
-            result = store.read_json(done[-1].id, "eval.json")["result"]
-            results.append(dict(result, id=done[-1].id, cached=True))
-            continue
-        if unassisted is None:
-            agents = {hid: load_human(store, hid, obs_space, act_space, device) for hid in dict.fromkeys(human_ids)}
+    with tempfile.TemporaryDirectory(prefix="d2a-eval-") as tmp:
+        session = _Session(store, track_ref, pair, intents, env_record, humans_refs, episodes, eval_seed, n_envs,
+                           device, Path(tmp))
+        for k, (name, seed, art_id) in enumerate(found):
             if progress:
-                progress({"stage": "unassisted", "done": 0, "total": len(found) + 1})
-            unassisted, _ = _run(test_humans, agents, intents, make_env, episodes, eval_seed, n_envs)
-        if progress:
-            progress({"stage": f"{name} seed {seed}", "done": k + 1, "total": len(found) + 1})
-        assistant, _, assistant_intents = load_assistant(store, art_id, obs_space, act_space, device)
-        if tuple(assistant_intents) != tuple(intents):
-            raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(assistant_intents)}, not {pair}")
-        assisted, logs = _run(test_humans, agents, intents, make_env, episodes, eval_seed, n_envs, assistant)
-        summary = summarise(test_humans, unassisted, assisted, intents)
-        result = {"method": name, "seed": seed, "assistant": art_id, "track": track, "pair": pair,
-                  "populations": population_ids, "episodes_per_human": episodes, "eval_seed": eval_seed,
-                  **summary}
-        with store.create("evaluation", inputs=[art_id, *dict.fromkeys(human_ids), bundle.track_id, *population_ids],
-                          config=env_record, seed=eval_seed,
-                          labels={"track": track, "pair": pair, "method": name, "seed": seed, "run_key": key}) as writer:
-            writer.add_json("eval.json", {"result": result, "unassisted": unassisted, "assisted": assisted})
-            writer.add_bytes("steps.npz", _steps_npz(assisted, logs))
-        result = dict(result, id=writer.artifact.id)
-        store.tag(writer.artifact.id, f"eval/{track}/{pair}/{name}/seed{seed}{suffix}")
-        results.append(dict(result, cached=False))
+                progress({"stage": f"{name} seed {seed}", "done": k, "total": len(found)})
+            results.append(session.evaluate(name, seed, art_id))
     return {"evaluations": results}

@@ -70,26 +70,33 @@ class RecordEpisodes(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def _log(self, info: dict[str, Any], reward: float = 0.0) -> None:
-        race = self.env.unwrapped
-        world = race.world
-        ego = world.car_pose(0)
-        opp = world.car_pose(1)
-        cars = {"ego": CarPose(*ego[:4]), "opponent": CarPose(*opp[:4])}
-        ego_state = {
-            "s": info["s"], "e": info["e"], "speed": info["speed"], "yaw_rate": info["yaw_rate"],
-            "sideslip": info["sideslip"], "slip_front": info["slip_front"], "slip_rear": info["slip_rear"],
-            "ds": info["ds"], "de": info["de"], "progress": info["progress"],
-            "applied_action": _action(info["applied_action"]), "partner_action": _action(info["partner_action"]),
-            "human_action": _action(info.get("human_action", (np.nan, np.nan))),
-            "assistant_action": _action(info.get("assistant_action", (np.nan, np.nan))),
-            "reward": float(reward), "reward_terms": info["reward_terms"] or {},
-            "intent": info["intent"] or "", "collision": info["collision"], "off_track": info["off_track"],
-        }
-        if not ego_state["reward_terms"]:  # the first step has no terms yet: same layout, zeros
-            ego_state["reward_terms"] = RewardTerms.zeros().as_dict()
-        opp_state = {"s": info["opponent_s"], "e": info["opponent_e"], "racing": info["opponent_racing"]}
-        self._recorder.log_step(info["t"], cars, {"ego": ego_state, "opponent": opp_state})
+        cars, states = step_record(self.env.unwrapped, info, reward)
+        self._recorder.log_step(info["t"], cars, states)
 
     def close(self) -> None:
         self._close_recorder()
         super().close()
+
+
+def step_record(race, info: dict[str, Any], reward: float = 0.0) -> tuple[dict[str, CarPose], dict[str, dict]]:
+    """The car poses and per-agent state fields of one step of a `RaceEnv` (`race`), as episode
+    logs record them: ego state (position on the track, speed, slip, ds/de, every action, reward
+    and its terms, intent, outcome) and the opponent's."""
+    world = race.world
+    ego = world.car_pose(0)
+    opp = world.car_pose(1)
+    cars = {"ego": CarPose(*ego[:4]), "opponent": CarPose(*opp[:4])}
+    ego_state = {
+        "s": info["s"], "e": info["e"], "speed": info["speed"], "yaw_rate": info["yaw_rate"],
+        "sideslip": info["sideslip"], "slip_front": info["slip_front"], "slip_rear": info["slip_rear"],
+        "ds": info["ds"], "de": info["de"], "progress": info["progress"],
+        "applied_action": _action(info["applied_action"]), "partner_action": _action(info["partner_action"]),
+        "human_action": _action(info.get("human_action", (np.nan, np.nan))),
+        "assistant_action": _action(info.get("assistant_action", (np.nan, np.nan))),
+        "reward": float(reward), "reward_terms": info["reward_terms"] or {},
+        "intent": info["intent"] or "", "collision": info["collision"], "off_track": info["off_track"],
+    }
+    if not ego_state["reward_terms"]:  # the first step has no terms yet: same layout, zeros
+        ego_state["reward_terms"] = RewardTerms.zeros().as_dict()
+    opp_state = {"s": info["opponent_s"], "e": info["opponent_e"], "racing": info["opponent_racing"]}
+    return cars, {"ego": ego_state, "opponent": opp_state}

@@ -30,6 +30,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,9 @@ from d2a_core.agents.dreamer.latent import Latent
 from d2a_core.agents.protocol import AssistantAgent
 from d2a_core.evaluation.metrics import episode_metrics
 from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, pick_intent
+from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
+from d2a_core.sim.recording import scene_of, step_record
 
 ASSISTANT_TERMS = ("task", "intervention", "expert_reward", "expert_distance", "total")
 """The assistant reward's terms, unweighted (`AssistantRewardTerms`), summed per episode as
@@ -128,7 +131,8 @@ class SharedCollector:
                  next_episode: Callable[[], EpisodeSpec | None], assistant: AssistantAgent | None = None,
                  experts: Sequence[ExpertFilter] | None = None,
                  reward_config: AssistantRewardConfig | None = None, keep_steps: bool = False,
-                 label_field: str | None = "intent") -> None:
+                 label_field: str | None = "intent", log_dir: Path | None = None,
+                 log_metadata: dict[str, Any] | None = None) -> None:
         self.envs = list(envs)
         self.n = len(self.envs)
         self.humans = humans
@@ -140,6 +144,11 @@ class SharedCollector:
         self.keep_steps = keep_steps
         self.label_field = label_field
         self.timing: dict[str, float] = {}  # wall seconds per phase since the caller last cleared it
+        # MCAP episode logs (one file per episode in `log_dir`), for evaluation
+        self.log_dir = None if log_dir is None else Path(log_dir)
+        self.log_metadata = dict(log_metadata or {})
+        self._recorders: list[EpisodeRecorder | None] = [None] * len(self.envs)
+        self._scene = scene_of(self.envs[0].track) if log_dir is not None else None
         wants_experts = self.reward_config.alpha_r > 0 or self.reward_config.alpha_a > 0
         if assistant is not None and wants_experts and not self.experts:
             raise ValueError("the assistant's reward weights the experts (alpha_r or alpha_a > 0) but no "
@@ -186,6 +195,8 @@ class SharedCollector:
         self.humans.assign(i, spec.human)
         self._episode[i] = {"infos": [info], "rewards": [], "terms": [], "y_hat": [], "p_true": [],
                             "human_action": [], "assistant_action": []}
+        if self.log_dir is not None:
+            self._open_log(i, spec, info)
 
     @staticmethod
     def _expert_view(obs: np.ndarray) -> np.ndarray:
@@ -241,7 +252,8 @@ class SharedCollector:
                 ep["p_true"].append(float(probs[i, self._labels[i]]))
             env.set_partner_action(a_human[i])  # the assistant's next observation shows a_H
             obs, reward, terminated, truncated, info = env.step(blended[i])
-            ep["infos"].append(dict(info, human_action=a_human[i], assistant_action=a_assist[i]))
+            info = dict(info, human_action=a_human[i], assistant_action=a_assist[i])
+            ep["infos"].append(info)
             ep["rewards"].append(float(reward))
             if self.keep_steps:
                 ep["human_action"].append(a_human[i].tolist())
@@ -280,9 +292,47 @@ class SharedCollector:
             self._reward[i] = terms.total[i]
             ep = self._episode[i]
             ep["terms"].append([float(getattr(terms, name)[i]) for name in ASSISTANT_TERMS])
+            if self._recorders[i] is not None:
+                self._log_step(i, ep["infos"][-1], ep["rewards"][-1], None if probs is None else probs[i],
+                               ep["terms"][-1])
             if self._done[i]:
                 finished.append(self._finish(i))
         return finished
+
+    def close(self) -> None:
+        """Abandon the episode logs still being written (their partial files are removed)."""
+        for i, recorder in enumerate(self._recorders):
+            if recorder is not None:
+                recorder.abort()
+                self._recorders[i] = None
+
+    # --- episode logs
+
+    def _open_log(self, i: int, spec: EpisodeSpec, info: dict[str, Any]) -> None:
+        assert self.log_dir is not None and self._scene is not None
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        path = self.log_dir / f"human{spec.human:03d}-seed{spec.seed}.mcap"
+        meta = {**self.log_metadata, **asdict(spec), "intent": self.intents[spec.label], "replay": info["replay"]}
+        recorder = EpisodeRecorder(path, self._scene, meta, self.envs[i].cfg.dt)
+        recorder.open()
+        self._recorders[i] = recorder
+        self._log_step(i, info, 0.0, None, [0.0] * len(ASSISTANT_TERMS))
+
+    def _log_step(self, i: int, info: dict[str, Any], reward: float, probs: np.ndarray | None,
+                  terms: list[float]) -> None:
+        """One step of episode log: the env's fields, plus an `assistant` channel with the
+        inferred intent's probabilities (NaN without an estimate), the true intent and the
+        assistant reward's terms."""
+        cars, states = step_record(self.envs[i], info, reward)
+        spec = self._spec[i]
+        assert spec is not None
+        states["assistant"] = {
+            "intent_probs": {name: float("nan") if probs is None else float(probs[k])
+                             for k, name in enumerate(self.intents)},
+            "true_intent": self.intents[spec.label],
+            "terms": dict(zip(ASSISTANT_TERMS, terms)),
+        }
+        self._recorders[i].log_step(info["t"], cars, states)
 
     def _tick(self, phase: str, since: float) -> float:
         now = time.perf_counter()
@@ -302,6 +352,12 @@ class SharedCollector:
             row["intent_accuracy"] = float(np.mean(np.array(ep["y_hat"]) == spec.label))
             # one row of the per-step confusion matrix: how often each intent was inferred
             row["intent_counts"] = np.bincount(ep["y_hat"], minlength=len(self.intents)).tolist()
+        if self._recorders[i] is not None:
+            self._recorders[i].update_metadata({"outcome": {k: row[k] for k in ("progress_m", "finished", "collision",
+                                                                              "off_track", "return")}})
+            self._recorders[i].close()
+            row["log"] = str(self._recorders[i].path)
+            self._recorders[i] = None
         if self.keep_steps:
             row["steps_log"] = {"terms": terms.tolist(), "y_hat": ep["y_hat"], "p_true": ep["p_true"],
                                 "human_action": ep["human_action"], "assistant_action": ep["assistant_action"]}
