@@ -171,3 +171,28 @@ def test_eval_errors_name_what_to_run(cli, eval_store):
     res = cli("eval", *PAIR, "--humans", "nonexistent", "--humans", "humans/straightaway/stay", "--json",
               store=eval_store)
     assert res.code == 2 and "nonexistent" in res.json["error"]["message"]
+
+
+def test_intent_swap_reports_recovery_for_each_direction_and_stores_the_trials(cli, eval_store):
+    res = cli("intent-swap", *PAIR, "--baseline", "dreamer", "--trials", "2", "--window", "1", "3", "--json",
+              store=eval_store)
+    assert res.code == 0, res.stderr
+    swaps = res.json["intent_swaps"]
+    assert [(s["method"], s["seed"]) for s in swaps] == [("dream2assist", 0), ("dreamer", 0)]
+    store = Store(eval_store)
+    for s in swaps:
+        assert set(s["metrics"]) == {"pass-to-stay", "stay-to-pass"}
+        for direction, curve in s["directions"].items():
+            if s["method"] == "dreamer":
+                assert curve is None  # no intent estimate, no curve
+                continue
+            assert curve["trials"] == 2 and curve["time_s"][20] == 0.0
+            assert len(curve["accuracy"]) == len(curve["time_s"])
+        art = store.get(s["id"])
+        assert art.kind == "intent-swap" and s["assistant"] in art.inputs
+        stored = store.read_json(s["id"], "swap.json")
+        assert all(10 <= spec["swap_step"] <= 30 for spec in stored["specs"])  # the 1-3 s window at dt 0.1
+        assert sum(name.endswith(".mcap") for name in art.files) == 2 * len(stored["specs"])
+        assert store.resolve(f"intent-swap/straightaway/pass-stay/{s['method']}/seed0") == s["id"]
+    bad = cli("intent-swap", *PAIR, "--window", "5", "2", "--json", store=eval_store)
+    assert bad.code == 2 and "--window" in bad.json["error"]["message"]

@@ -207,3 +207,36 @@ def test_episodes_are_defined_by_their_spec_not_by_the_order_they_end(track):
             assert a[key][metric] == b[key][metric], (key, metric)
     assert a[(1, 2)]["intent"] == "stay" and a[(0, 1)]["intent"] == "pass"
     assert a[(0, 1)]["mean_speed_m_s"] != a[(1, 2)]["mean_speed_m_s"]  # different humans drove
+
+
+class CountingHuman(ScriptedHuman):
+    """Also records the is_first flags it was given."""
+
+    def __init__(self, action):
+        super().__init__(action)
+        self.firsts: list[np.ndarray] = []
+
+    def policy(self, obs_batch, state, explore=True, generator=None):
+        self.firsts.append(np.array(obs_batch["is_first"]))
+        return super().policy(obs_batch, state, explore, generator)
+
+
+def test_an_intent_swap_replaces_the_human_at_the_drawn_step(track):
+    """Before step 7 human 0 (pass) drives; from step 7 human 1 (stay), from a blank state, and
+    the true label the step logs carry flips at the same step."""
+    first, second = CountingHuman([0.0, 0.8]), CountingHuman([0.0, -0.2])
+    spec = EpisodeSpec(seed=5, human=0, label=0, swap_step=7, swap_human=1, swap_label=1)
+    queue = iter([spec])
+    assistant = ScriptedAssistant([0.0, 0.0], probs=[0.3, 0.7])
+    collector = SharedCollector([RaceEnv(track)], HumanDrivers([first, second], 1, False, 0), PAIR,
+                                lambda: next(queue, None), assistant=assistant,
+                                reward_config=AssistantRewardConfig(alpha_r=0.0), keep_steps=True)
+    rows = run(collector)
+    assert len(first.seen) == 7 and len(second.seen) == len(rows[0]["steps_log"]["labels"]) - 7
+    assert first.firsts[0][0] and not any(f[0] for f in first.firsts[1:])
+    assert second.firsts[0][0] and not any(f[0] for f in second.firsts[1:])  # a blank state at the swap
+    labels = rows[0]["steps_log"]["labels"]
+    assert labels[:7] == [0] * 7 and set(labels[7:]) == {1}
+    accuracy = np.mean(np.array(rows[0]["steps_log"]["y_hat"]) == np.array(labels))
+    assert rows[0]["intent_accuracy"] == pytest.approx(accuracy)
+    assert "intent_counts" not in rows[0]  # one label per episode no longer holds

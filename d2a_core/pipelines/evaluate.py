@@ -60,7 +60,7 @@ def stored_seeds(store: Store, track: str, pair: str, method: str) -> list[int]:
     return sorted(int(a[len(prefix):]) for a in store.refs() if a.startswith(prefix) and a[len(prefix):].isdigit())
 
 
-def _assistants(store: Store, track: str, pair: str, names: Sequence[str],
+def find_assistants(store: Store, track: str, pair: str, names: Sequence[str],
                 seeds: Sequence[int] | None) -> list[tuple[str, int, str]]:
     """(method, seed, assistant id) for every method and seed asked for."""
     out = []
@@ -126,17 +126,22 @@ def summarise(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted:
     return out
 
 
-def _run(humans: Sequence[TestHuman], agents: dict[str, Any], intents: Sequence[str], make_env, episodes: int,
-         eval_seed: int, n_envs: int, log_dir: Path, assistant=None,
-         log_metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
-    """Every human's `episodes` specs (grouped by human, so a batch holds few distinct humans);
-    rows in spec order, and per-step logs when assisted. Each episode's MCAP log goes to
-    `log_dir` (its path in the row's `log`)."""
-    specs = [EpisodeSpec(seed=SEED_BASE + 1000 * eval_seed + j, human=h, label=humans[h].label)
-             for h in range(len(humans)) for j in range(episodes)]
+def panel_specs(humans: Sequence[TestHuman], episodes: int, eval_seed: int) -> list[EpisodeSpec]:
+    """Every human's `episodes` episodes on the same env seeds, grouped by human (so a batch of
+    envs holds few distinct humans)."""
+    return [EpisodeSpec(seed=SEED_BASE + 1000 * eval_seed + j, human=h, label=humans[h].label)
+            for h in range(len(humans)) for j in range(episodes)]
+
+
+def run_specs(specs: Sequence[EpisodeSpec], human_agents: Sequence[Any], intents: Sequence[str], make_env,
+              n_envs: int, log_dir: Path, assistant=None,
+              log_metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
+    """Drive every spec (humans act with their mode; the assistant, if any, with its mode).
+    Returns the rows in spec order and, when assisted, their per-step logs. Each episode's MCAP
+    log goes to `log_dir` (its path in the row's `log`)."""
     queue = iter(specs)
     envs = [make_env() for _ in range(max(1, min(n_envs, len(specs))))]
-    drivers = HumanDrivers([agents[h.id] for h in humans], len(envs), explore=False, seed=0)
+    drivers = HumanDrivers(list(human_agents), len(envs), explore=False, seed=0)
     try:
         # no expert terms in evaluation: the metrics are the human's, not the assistant's reward
         collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
@@ -225,8 +230,9 @@ class _Session:
         if self._agents is None:
             self._agents = {hid: load_human(self.store, hid, self.obs_space, self.act_space, self.device)
                             for hid in dict.fromkeys(self.human_ids)}
-        return _run(self.humans, self._agents, self.intents, self.make_env, self.episodes, self.eval_seed,
-                    self.n_envs, self.log_root / name, assistant, {"track": self.track, **(metadata or {})})
+        specs = panel_specs(self.humans, self.episodes, self.eval_seed)
+        return run_specs(specs, [self._agents[h.id] for h in self.humans], self.intents, self.make_env, self.n_envs,
+                         self.log_root / name, assistant, {"track": self.track, **(metadata or {})})
 
     def unassisted(self) -> list[dict]:
         if self._unassisted is None:
@@ -261,8 +267,8 @@ class _Session:
         labels = {"track": self.track, "pair": self.pair, "method": name, "seed": seed, "run_key": key}
         with store.create("evaluation", inputs=inputs, config=self.env_record, seed=self.eval_seed,
                           labels=labels) as writer:
-            writer.add_json("eval.json", {"result": result, "unassisted": [_stored(r) for r in unassisted],
-                                          "assisted": [_stored(r) for r in assisted]})
+            writer.add_json("eval.json", {"result": result, "unassisted": [stored_row(r) for r in unassisted],
+                                          "assisted": [stored_row(r) for r in assisted]})
             writer.add_bytes("steps.npz", _steps_npz(assisted, step_logs))
             for condition, rows in (("unassisted", unassisted), ("assisted", assisted)):
                 for r in rows:
@@ -276,7 +282,7 @@ def _log_name(condition: str, row: Mapping[str, Any]) -> str:
     return f"episodes/{condition}/human{row['human']:03d}-seed{row['seed']}.mcap"
 
 
-def _stored(row: Mapping[str, Any]) -> dict[str, Any]:
+def stored_row(row: Mapping[str, Any]) -> dict[str, Any]:
     """An episode row as stored: its log named by its place in the artifact, not a temp path."""
     return {k: v for k, v in row.items() if k != "log"}
 
@@ -288,7 +294,7 @@ def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_
     if len(set(names)) != len(names):
         raise UsageError(f"a method is named twice: {', '.join(names)}")
     track = load_track_bundle(store, track_ref, EnvConfig().dt).track.name
-    found = _assistants(store, track, pair, names, seeds)
+    found = find_assistants(store, track, pair, names, seeds)
     env_record = {k: store.get(found[0][2]).config[k] for k in ENV_SECTIONS}
     for name, seed, art_id in found[1:]:
         if {k: store.get(art_id).config[k] for k in ENV_SECTIONS} != env_record:

@@ -54,12 +54,18 @@ ASSISTANT_TERMS = ("task", "intervention", "expert_reward", "expert_distance", "
 @dataclass(frozen=True)
 class EpisodeSpec:
     """What defines an episode: the env seed (start and, unless given, the replay drawn), the
-    human checkpoint (index into the collector's humans) and its intent (index in the pair)."""
+    human checkpoint (index into the collector's humans) and its intent (index in the pair).
+
+    An intent swap (paper appendix): before step `swap_step` the human is replaced by human
+    `swap_human` of intent `swap_label`, which starts from a blank recurrent state."""
 
     seed: int
     human: int
     label: int
     replay: int | None = None
+    swap_step: int | None = None
+    swap_human: int | None = None
+    swap_label: int | None = None
 
 
 def _rows(state: PolicyState, index: torch.Tensor) -> PolicyState:
@@ -194,7 +200,7 @@ class SharedCollector:
         self._labels[i] = spec.label
         self.humans.assign(i, spec.human)
         self._episode[i] = {"infos": [info], "rewards": [], "terms": [], "y_hat": [], "p_true": [],
-                            "human_action": [], "assistant_action": []}
+                            "labels": [], "human_action": [], "assistant_action": []}
         if self.log_dir is not None:
             self._open_log(i, spec, info)
 
@@ -234,7 +240,14 @@ class SharedCollector:
             a_assist = np.zeros((self.n, 2), np.float32)
         clock = self._tick("acting/assistant", clock)
         stepping = active & ~self._done
-        a_human = self.humans.act(self._human_obs, self._first, stepping)
+        human_first = self._first.copy()
+        for i in np.flatnonzero(stepping):
+            spec = self._spec[i]
+            if spec is not None and spec.swap_step is not None and len(self._episode[i]["infos"]) - 1 == spec.swap_step:
+                self.humans.assign(i, spec.swap_human)
+                self._labels[i] = spec.swap_label
+                human_first[i] = True  # the new human knows nothing of the episode so far
+        a_human = self.humans.act(self._human_obs, human_first, stepping)
         clock = self._tick("acting/humans", clock)
         blended = np.clip(a_human + a_assist, -1.0, 1.0)
         task = np.zeros(self.n)
@@ -250,6 +263,7 @@ class SharedCollector:
             if probs is not None:
                 ep["y_hat"].append(int(y_hat[i]))
                 ep["p_true"].append(float(probs[i, self._labels[i]]))
+            ep["labels"].append(int(self._labels[i]))
             env.set_partner_action(a_human[i])  # the assistant's next observation shows a_H
             obs, reward, terminated, truncated, info = env.step(blended[i])
             info = dict(info, human_action=a_human[i], assistant_action=a_assist[i])
@@ -329,7 +343,7 @@ class SharedCollector:
         states["assistant"] = {
             "intent_probs": {name: float("nan") if probs is None else float(probs[k])
                              for k, name in enumerate(self.intents)},
-            "true_intent": self.intents[spec.label],
+            "true_intent": self.intents[int(self._labels[i])],
             "terms": dict(zip(ASSISTANT_TERMS, terms)),
         }
         self._recorders[i].log_step(info["t"], cars, states)
@@ -349,9 +363,10 @@ class SharedCollector:
         for k, name in enumerate(ASSISTANT_TERMS):
             row[f"assist/{name}"] = float(np.nansum(terms[:, k])) if np.isfinite(terms[:, k]).any() else None
         if ep["y_hat"]:
-            row["intent_accuracy"] = float(np.mean(np.array(ep["y_hat"]) == spec.label))
+            row["intent_accuracy"] = float(np.mean(np.array(ep["y_hat"]) == np.array(ep["labels"])))
             # one row of the per-step confusion matrix: how often each intent was inferred
-            row["intent_counts"] = np.bincount(ep["y_hat"], minlength=len(self.intents)).tolist()
+            if spec.swap_step is None:
+                row["intent_counts"] = np.bincount(ep["y_hat"], minlength=len(self.intents)).tolist()
         if self._recorders[i] is not None:
             self._recorders[i].update_metadata({"outcome": {k: row[k] for k in ("progress_m", "finished", "collision",
                                                                               "off_track", "return")}})
@@ -360,6 +375,7 @@ class SharedCollector:
             self._recorders[i] = None
         if self.keep_steps:
             row["steps_log"] = {"terms": terms.tolist(), "y_hat": ep["y_hat"], "p_true": ep["p_true"],
+                                "labels": ep["labels"],
                                 "human_action": ep["human_action"], "assistant_action": ep["assistant_action"]}
         return row
 
