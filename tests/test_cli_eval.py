@@ -130,6 +130,12 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
             assert twins[(r["human"], r["seed"])]["label"] == r["label"]
         steps = np.load(io.BytesIO(store.read_bytes(e["id"], "steps.npz")))
         assert ("p_true" in steps) == (e["method"] != "dreamer")
+        # the assistant's latent states along each human's first episode, labelled by the true intent
+        latents = np.load(io.BytesIO(store.read_bytes(e["id"], "latents.npz")))
+        first = [k for k, r in enumerate(stored["assisted"]) if r["seed"] == stored["assisted"][0]["seed"]]
+        assert sorted(set(latents["episode"].tolist())) == first
+        assert latents["features"].shape == (sum(stored["assisted"][k]["steps"] for k in first), 32)  # smoke deter
+        assert set(latents["label"].tolist()) == {0, 1}
     d2a = evals[0]
     assert d2a["intent_f1"] is not None and len(d2a["intent_confusion"]) == 2
     # every episode of both conditions is an MCAP log in the evaluation: read one back after export

@@ -134,8 +134,8 @@ def panel_specs(humans: Sequence[TestHuman], episodes: int, eval_seed: int) -> l
 
 
 def run_specs(specs: Sequence[EpisodeSpec], human_agents: Sequence[Any], intents: Sequence[str], make_env,
-              n_envs: int, log_dir: Path, assistant=None,
-              log_metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
+              n_envs: int, log_dir: Path, assistant=None, log_metadata: dict[str, Any] | None = None,
+              record_features: Callable[[EpisodeSpec], bool] | None = None) -> tuple[list[dict], list[dict]]:
     """Drive every spec (humans act with their mode; the assistant, if any, with its mode).
     Returns the rows in spec order and, when assisted, their per-step logs. Each episode's MCAP
     log goes to `log_dir` (its path in the row's `log`)."""
@@ -147,7 +147,7 @@ def run_specs(specs: Sequence[EpisodeSpec], human_agents: Sequence[Any], intents
         collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
                                     reward_config=AssistantRewardConfig(alpha_r=0.0, alpha_a=0.0),
                                     keep_steps=assistant is not None, label_field=None, log_dir=log_dir,
-                                    log_metadata=log_metadata)
+                                    log_metadata=log_metadata, record_features=record_features)
         try:
             rows: list[dict] = []
             while not collector.idle:
@@ -231,8 +231,10 @@ class _Session:
             self._agents = {hid: load_human(self.store, hid, self.obs_space, self.act_space, self.device)
                             for hid in dict.fromkeys(self.human_ids)}
         specs = panel_specs(self.humans, self.episodes, self.eval_seed)
+        first_seed = specs[0].seed  # latent states of each human's first episode, for the report's t-SNE
         return run_specs(specs, [self._agents[h.id] for h in self.humans], self.intents, self.make_env, self.n_envs,
-                         self.log_root / name, assistant, {"track": self.track, **(metadata or {})})
+                         self.log_root / name, assistant, {"track": self.track, **(metadata or {})},
+                         record_features=lambda spec: spec.seed == first_seed)
 
     def unassisted(self) -> list[dict]:
         if self._unassisted is None:
@@ -260,6 +262,7 @@ class _Session:
             raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(trained_on)}, not {self.pair}")
         assisted, step_logs = self.run(f"{name}-seed{seed}", assistant, {
             "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id})
+        latents = _latents_npz(assisted)
         result = {"method": name, "seed": seed, "assistant": art_id, "track": self.track, "pair": self.pair,
                   "populations": self.population_ids, "episodes_per_human": self.episodes,
                   "eval_seed": self.eval_seed, **summarise(self.humans, unassisted, assisted, self.intents)}
@@ -270,6 +273,8 @@ class _Session:
             writer.add_json("eval.json", {"result": result, "unassisted": [stored_row(r) for r in unassisted],
                                           "assisted": [stored_row(r) for r in assisted]})
             writer.add_bytes("steps.npz", _steps_npz(assisted, step_logs))
+            if latents is not None:
+                writer.add_bytes("latents.npz", latents)
             for condition, rows in (("unassisted", unassisted), ("assisted", assisted)):
                 for r in rows:
                     writer.add_file(_log_name(condition, r), r["log"])
@@ -283,8 +288,25 @@ def _log_name(condition: str, row: Mapping[str, Any]) -> str:
 
 
 def stored_row(row: Mapping[str, Any]) -> dict[str, Any]:
-    """An episode row as stored: its log named by its place in the artifact, not a temp path."""
-    return {k: v for k, v in row.items() if k != "log"}
+    """An episode row as stored: its log named by its place in the artifact, not a temp path, and
+    its latent features in `latents.npz`."""
+    return {k: v for k, v in row.items() if k not in ("log", "features")}
+
+
+def _latents_npz(rows: Sequence[dict]) -> bytes | None:
+    """`latents.npz` of the episodes that kept the assistant's latent features: `features`
+    (T, F), the true intent `label` (T,) and `episode` (T,: index into eval.json's `assisted`)."""
+    kept = [(k, r) for k, r in enumerate(rows) if r.get("features") is not None]
+    if not kept:
+        return None
+    buffer = io.BytesIO()
+    np.savez_compressed(
+        buffer,
+        features=np.concatenate([r["features"] for _, r in kept]).astype(np.float32),
+        label=np.concatenate([np.full(len(r["features"]), r["label"], np.int8) for _, r in kept]),
+        episode=np.concatenate([np.full(len(r["features"]), k, np.int32) for k, r in kept]),
+    )
+    return buffer.getvalue()
 
 
 def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress):

@@ -138,7 +138,8 @@ class SharedCollector:
                  experts: Sequence[ExpertFilter] | None = None,
                  reward_config: AssistantRewardConfig | None = None, keep_steps: bool = False,
                  label_field: str | None = "intent", log_dir: Path | None = None,
-                 log_metadata: dict[str, Any] | None = None) -> None:
+                 log_metadata: dict[str, Any] | None = None,
+                 record_features: Callable[[EpisodeSpec], bool] | None = None) -> None:
         self.envs = list(envs)
         self.n = len(self.envs)
         self.humans = humans
@@ -149,6 +150,8 @@ class SharedCollector:
         self.reward_config = reward_config or AssistantRewardConfig()
         self.keep_steps = keep_steps
         self.label_field = label_field
+        # episodes whose assistant latent features (`assistant.features(state)`) are kept per step
+        self.record_features = record_features if assistant is not None and hasattr(assistant, "features") else None
         self.timing: dict[str, float] = {}  # wall seconds per phase since the caller last cleared it
         # MCAP episode logs (one file per episode in `log_dir`), for evaluation
         self.log_dir = None if log_dir is None else Path(log_dir)
@@ -200,7 +203,8 @@ class SharedCollector:
         self._labels[i] = spec.label
         self.humans.assign(i, spec.human)
         self._episode[i] = {"infos": [info], "rewards": [], "terms": [], "y_hat": [], "p_true": [],
-                            "labels": [], "human_action": [], "assistant_action": []}
+                            "labels": [], "human_action": [], "assistant_action": [],
+                            "features": [] if self.record_features and self.record_features(spec) else None}
         if self.log_dir is not None:
             self._open_log(i, spec, info)
 
@@ -231,6 +235,7 @@ class SharedCollector:
             probs = self.assistant.intent_probs(self._assistant_state)
             if probs is not None:
                 y_hat = np.asarray(probs).argmax(-1)
+            features = self.assistant.features(self._assistant_state) if self.record_features else None
             if self.experts and y_hat is None:
                 raise ValueError("the assistant gives no intent estimate, but its reward queries the experts")
             if learn:
@@ -238,6 +243,7 @@ class SharedCollector:
                 self.assistant.observe({**record, "action": a_assist, **labels})
         else:
             a_assist = np.zeros((self.n, 2), np.float32)
+            features = None
         clock = self._tick("acting/assistant", clock)
         stepping = active & ~self._done
         human_first = self._first.copy()
@@ -264,6 +270,8 @@ class SharedCollector:
                 ep["y_hat"].append(int(y_hat[i]))
                 ep["p_true"].append(float(probs[i, self._labels[i]]))
             ep["labels"].append(int(self._labels[i]))
+            if features is not None and ep["features"] is not None:
+                ep["features"].append(np.asarray(features[i], np.float32))
             env.set_partner_action(a_human[i])  # the assistant's next observation shows a_H
             obs, reward, terminated, truncated, info = env.step(blended[i])
             info = dict(info, human_action=a_human[i], assistant_action=a_assist[i])
@@ -374,6 +382,8 @@ class SharedCollector:
             row["log"] = str(self._recorders[i].path)
             self._recorders[i] = None
         if self.keep_steps:
+            if ep["features"]:
+                row["features"] = np.stack(ep["features"])
             row["steps_log"] = {"terms": terms.tolist(), "y_hat": ep["y_hat"], "p_true": ep["p_true"],
                                 "labels": ep["labels"],
                                 "human_action": ep["human_action"], "assistant_action": ep["assistant_action"]}

@@ -155,6 +155,11 @@ class DreamerAgent:
             return None
         return heads["intent"].predict(state.latent).float().cpu().numpy()
 
+    def features(self, state: PolicyState) -> np.ndarray:
+        """The model state's deterministic part h (N, deter): what the report's t-SNE of
+        latent states embeds."""
+        return state.latent.h.float().cpu().numpy()
+
     def with_action(self, state: PolicyState, env_actions: np.ndarray) -> PolicyState:
         """The same state with another action taken (e.g. a blended human+assistant action), so
         that the next `policy` call conditions on what was really executed."""
