@@ -84,8 +84,9 @@ def train_assistant(
                               *(_num(m.get(f"{i}/weak/progress_gain")) for i in intents),
                               *(_num(m.get(f"{i}/expert/progress_ratio"), 3) for i in intents))
             out_console.print(table)
-            shares = ", ".join(f"{k} {v:.0%}" for k, v in res["time_shares"].items())
-            out_console.print(f"wall time: {shares}")
+            if res.get("time_shares"):
+                shares = ", ".join(f"{k} {v:.0%}" for k, v in res["time_shares"].items())
+                out_console.print(f"wall time: {shares}")
 
     run.emit({"assistants": results}, render)
 

@@ -65,6 +65,20 @@ def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trai
     assert store.verify() == []
 
 
+def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistants, pair_store_template, tmp_path):
+    """Trained again in a fresh copy of the same populations: the same checkpoint and run ids
+    (timings live in the manifest's provenance, outside the id)."""
+    store = copy_store(pair_store_template, tmp_path)
+    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--json", store=store)
+    assert res.code == 0, res.stderr
+    again = res.json["assistants"][0]
+    before = next(r for r in trained_assistants[1]["assistants"] if r["method"] == "dreamer")
+    assert not again["cached"] and again["run_id"] == before["run_id"]
+    assert [c["id"] for c in again["checkpoints"]] == [c["id"] for c in before["checkpoints"]]
+    notes = Store(store).get(again["run_id"]).manifest["provenance"]["notes"]
+    assert set(notes["time_shares"]) >= {"learning", "acting/humans"}
+
+
 def test_resume_after_sigkill(cli, pair_store):
     args = ["train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--seed", "1",
             "--set", "assistant.env_steps=480", "--set", "assistant.checkpoints=4", "--json"]

@@ -131,3 +131,17 @@ def test_train_humans_usage_errors(cli, track_store, tmp_path):
     assert res.code == 2 and "overtake" in res.json["error"]["message"]
     res = cli("train-humans", "--intent", "pass", "--track", "monza", *SMOKE, "--json", store=track_store)
     assert res.code == 2 and "make-track monza" in res.json["error"]["message"]
+
+
+def test_same_seed_and_config_give_the_same_population_id(cli, track_store, tmp_path):
+    """Reproducible to the byte: a fresh store, the same commands, the same artifact ids (the
+    curve keeps wall-clock timings out of the hashed files)."""
+    first = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json", store=track_store)
+    assert first.code == 0, first.stderr
+    fresh = tmp_path / "fresh"
+    assert cli("make-track", "straightaway", *SMOKE, "--json", store=fresh).code == 0
+    second = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json", store=fresh)
+    assert second.code == 0, second.stderr
+    a, b = first.json["populations"][0], second.json["populations"][0]
+    assert not b["cached"] and a["id"] == b["id"]
+    assert [c["id"] for c in a["checkpoints"]] == [c["id"] for c in b["checkpoints"]]

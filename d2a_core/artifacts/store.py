@@ -706,6 +706,7 @@ class ArtifactWriter:
         self.command = command
         self._files: dict[str, dict[str, Any]] = {}
         self._blobs: dict[str, Path] = {}
+        self._notes: dict[str, Any] = {}
         self._lock_cm: contextlib.AbstractContextManager | None = None
         self.artifact: Artifact | None = None
 
@@ -725,7 +726,7 @@ class ArtifactWriter:
                     "config": self.config,
                     "seed": self.seed,
                     "labels": self.labels,
-                    "provenance": provenance(self.command),
+                    "provenance": {**provenance(self.command), **({"notes": self._notes} if self._notes else {})},
                 }
                 try:
                     canonical_json(manifest)  # fail early on values JSON cannot hold (NaN, objects)
@@ -738,6 +739,11 @@ class ArtifactWriter:
                 tmp.unlink(missing_ok=True)
             assert self._lock_cm is not None
             self._lock_cm.__exit__(None, None, None)
+
+    def note(self, key: str, value: Any) -> None:
+        """Record `value` (JSON) under `provenance.notes.<key>`: facts about how the artifact was
+        made that must not change its id, such as wall-clock timings."""
+        self._notes[key] = value
 
     def _check_name(self, name: str) -> None:
         if not FILE_NAME.match(name) or ".." in name.split("/"):

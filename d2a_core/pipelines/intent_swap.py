@@ -96,23 +96,27 @@ def swap_curves(rows: Sequence[dict], logs: Sequence[dict], dt: float, intents: 
     pre = int(round(PRE_S / dt))
     for direction in (0, 1):
         name = f"{intents[direction]}-to-{intents[1 - direction]}"
-        series, trial_recovery = [], []
+        series, trial_recovery, before_swap = [], [], 0
         for row, log in zip(rows, logs):
             if row["label"] != direction or not log["y_hat"]:
                 continue
             correct = (np.array(log["y_hat"]) == np.array(log["labels"])).astype(float)
             swap = row["swap_step"]
+            if swap >= len(correct):  # the episode ended (a crash) before its swap: nothing to recover from
+                before_swap += 1
+                continue
             series.append((correct, swap))
-            after = correct[swap:] if swap < len(correct) else np.zeros(0)
-            trial_recovery.append(recovery_time(after, dt) if len(after) else None)
+            trial_recovery.append(recovery_time(correct[swap:], dt))
         if not series:
-            out[name] = None
+            out[name] = None if not before_swap else {
+                "time_s": [], "accuracy": [], "trials": 0, "recovery_s": None, "trial_recovery_s": [],
+                "median_trial_recovery_s": None, "recovered_trials": 0, "ended_before_swap": before_swap}
             continue
         length = max(len(c) - s for c, s in series)
         grid = np.full((len(series), pre + length), np.nan)
         for k, (correct, swap) in enumerate(series):
-            start = max(0, swap - pre)
-            grid[k, pre - (swap - start):pre + len(correct) - swap] = correct[start:]
+            steps = np.arange(max(0, swap - pre), len(correct))
+            grid[k, steps - (swap - pre)] = correct[steps]
         with np.errstate(invalid="ignore"):
             mean = np.nanmean(grid, axis=0)
         times = (np.arange(grid.shape[1]) - pre) * dt
@@ -125,6 +129,7 @@ def swap_curves(rows: Sequence[dict], logs: Sequence[dict], dt: float, intents: 
             "trial_recovery_s": trial_recovery,
             "median_trial_recovery_s": round(float(np.median(reached)), 6) if reached else None,
             "recovered_trials": len(reached),
+            "ended_before_swap": before_swap,
         }
     return out
 

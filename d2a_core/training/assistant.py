@@ -139,6 +139,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     if done:
         result = store.read_json(done[-1].id, "run.json")
         provenance = done[-1].manifest.get("provenance", {})
+        result.update({k: v for k, v in provenance.get("notes", {}).items() if k in ("time_shares", "time_s")})
         made_by = {"training_code_version": result.get("training_code_version"),
                    "created": provenance.get("created"), **provenance.get("code", {})}
         return dict(result, run_id=done[-1].id, resumed_from_env_step=None, cached=True, cached_from=made_by)
@@ -225,7 +226,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
             timer.add("learning", time.perf_counter() - started)
             if env_steps >= next_log or env_steps >= pending[0]:
                 curve.append({"env_step": env_steps, **_episode_stats(list(recent), len(intents)),
-                              **{k: round(v, 6) for k, v in last_metrics.items()}})
+                              # wall-clock timings stay out: the curve is hashed into the run's id
+                              **{k: round(v, 6) for k, v in last_metrics.items() if not k.startswith("time/")}})
                 next_log = (env_steps // ac.log_every + 1) * ac.log_every
             if progress:
                 elapsed = max(time.monotonic() - start_time, 1e-9)
@@ -262,9 +264,12 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
               "time_shares": timer.shares(), "time_s": {k: round(v, 3) for k, v in timer.seconds.items()},
               "training_code_version": TRAINING_CODE_VERSION, "runtime": runtime,
               "resumed_from_env_step": resumed_from}
+    timing = ("time_shares", "time_s")  # wall clock: in the manifest's provenance, not in the hashed files
     with store.create("assistant-run", inputs=[*inputs, *(c["id"] for c in checkpoints)], config=config_record,
                       seed=seed, labels={**tags, "run_key": key}) as writer:
-        writer.add_json("run.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
+        writer.add_json("run.json", {k: v for k, v in result.items() if k not in ("resumed_from_env_step", *timing)})
+        for name in timing:
+            writer.note(name, result[name])
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     name = f"{bundle.track.name}/{pair}/{method.name}/seed{seed}"

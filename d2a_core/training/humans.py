@@ -187,7 +187,8 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
             if env_steps >= next_log or env_steps >= pending[0]:
                 row = {"env_step": env_steps, "updates": agent.updates_done,
                        **{f"episode/{k}": v for k, v in aggregate(list(recent)).items()},
-                       **{k: round(v, 6) for k, v in last_metrics.items()}}
+                       # wall-clock timings stay out: the curve is hashed into the population's id
+                       **{k: round(v, 6) for k, v in last_metrics.items() if not k.startswith("time/")}}
                 curve.append(row)
                 next_log = (env_steps // hc.log_every + 1) * hc.log_every
             if progress:

@@ -56,3 +56,16 @@ def test_curves_are_aligned_to_each_trials_swap():
     assert (acc[:pre] == 1).all() and (acc[pre:pre + 3] == 0).all() and (acc[pre + 3:] == 1).all()
     assert curve["recovery_s"] == pytest.approx(0.3) and curve["trial_recovery_s"] == [0.3, 0.3]
     assert curve["trials"] == 2 and out["stay-to-pass"] is None
+
+
+def test_trials_that_end_before_their_swap_are_counted_not_curved():
+    """A trial whose episode ended (a crash) before its swap step has nothing to recover from."""
+    dt = 0.1
+    rows = [{"label": 1, "swap_step": 50}, {"label": 1, "swap_step": 20}]
+    logs = [{"labels": [1] * 30, "y_hat": [1] * 30},  # ended at step 30, before its swap at 50
+            {"labels": [1] * 20 + [0] * 20, "y_hat": [1] * 25 + [0] * 15}]
+    curve = swap_curves(rows, logs, dt, ("pass", "stay"))["stay-to-pass"]
+    assert curve["trials"] == 1 and curve["ended_before_swap"] == 1
+    assert curve["recovery_s"] == pytest.approx(0.5)
+    only_early = swap_curves(rows[:1], logs[:1], dt, ("pass", "stay"))["stay-to-pass"]
+    assert only_early["trials"] == 0 and only_early["recovery_s"] is None and only_early["ended_before_swap"] == 1
