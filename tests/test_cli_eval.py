@@ -202,3 +202,25 @@ def test_intent_swap_reports_recovery_for_each_direction_and_stores_the_trials(c
         assert store.resolve(f"intent-swap/straightaway/pass-stay/{s['method']}/seed0") == s["id"]
     bad = cli("intent-swap", *PAIR, "--window", "5", "2", "--json", store=eval_store)
     assert bad.code == 2 and "--window" in bad.json["error"]["message"]
+
+
+def test_held_out_means_populations_the_assistant_did_not_train_with(cli, eval_store):
+    """The assistant's own populations named explicitly are not held out (the plain alias);
+    others are (the alias gets /humans-<ids>)."""
+    store = Store(eval_store)
+    own = [store.resolve("humans/straightaway/pass"), store.resolve("humans/straightaway/stay")]
+    res = cli("eval", *PAIR, "--method", "dreamer", "--humans", own[0], "--humans", own[1], "--episodes", "1",
+              "--json", store=eval_store)
+    assert res.code == 0, res.stderr
+    e = res.json["evaluations"][0]
+    assert e["held_out"] is False and store.resolve("eval/straightaway/pass-stay/dreamer/seed0") == e["id"]
+    other = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--seed", "1", "--json",
+                store=eval_store)
+    assert other.code == 0, other.stderr
+    stay1 = other.json["populations"][0]["id"]
+    res = cli("eval", *PAIR, "--method", "dreamer", "--humans", own[0], "--humans", stay1, "--episodes", "1",
+              "--json", store=eval_store)
+    assert res.code == 0, res.stderr
+    e = res.json["evaluations"][0]
+    assert e["held_out"] is True
+    assert store.resolve(f"eval/straightaway/pass-stay/dreamer/seed0/humans-{own[0][:8]}-{stay1[:8]}") == e["id"]

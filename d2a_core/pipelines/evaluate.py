@@ -12,7 +12,8 @@ Per assistant an `evaluation` artifact holds every episode row of both condition
 and the per-step log of the assisted episodes (the inferred intent's probability of the true
 intent at every step, both actions and the reward terms), with inputs: the assistant, the humans
 and the track. Alias `eval/<track>/<pair>/<method>/seed<k>` (with `/humans-<ids>` appended when
-`--humans` names other populations). An evaluation is deterministic, so an identical request
+the humans come from populations the assistant was not trained with: `held_out` in the result).
+An evaluation is deterministic, so an identical request
 returns the stored artifact.
 
 The env (env, reward, vehicle, world sections) is the one the assistants were trained in, read
@@ -214,7 +215,7 @@ class _Session:
         self.humans = [h for label, (_, pop) in enumerate(populations)
                        for h in select_humans(pop, intents[label], label)]
         self.human_ids = [h.id for h in self.humans]
-        self.alias_suffix = "" if humans_refs is None else "/humans-" + "-".join(p[:8] for p in self.population_ids)
+        self.held_out_suffix = "/humans-" + "-".join(p[:8] for p in self.population_ids)
         probe = self.make_env()
         self.obs_space, self.act_space = probe.observation_space, probe.action_space
         probe.close()
@@ -263,8 +264,10 @@ class _Session:
         assisted, step_logs = self.run(f"{name}-seed{seed}", assistant, {
             "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id})
         latents = _latents_npz(assisted)
+        # held out: humans of populations the assistant was not trained with (its inputs say which)
+        held_out = not set(self.population_ids) <= set(store.get(art_id).inputs)
         result = {"method": name, "seed": seed, "assistant": art_id, "track": self.track, "pair": self.pair,
-                  "populations": self.population_ids, "episodes_per_human": self.episodes,
+                  "populations": self.population_ids, "held_out": held_out, "episodes_per_human": self.episodes,
                   "eval_seed": self.eval_seed, **summarise(self.humans, unassisted, assisted, self.intents)}
         inputs = [art_id, *dict.fromkeys(self.human_ids), self.bundle.track_id, *self.population_ids]
         labels = {"track": self.track, "pair": self.pair, "method": name, "seed": seed, "run_key": key}
@@ -278,7 +281,8 @@ class _Session:
             for condition, rows in (("unassisted", unassisted), ("assisted", assisted)):
                 for r in rows:
                     writer.add_file(_log_name(condition, r), r["log"])
-        store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{self.alias_suffix}")
+        suffix = self.held_out_suffix if held_out else ""
+        store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{suffix}")
         return dict(result, id=writer.artifact.id, cached=False)
 
 
