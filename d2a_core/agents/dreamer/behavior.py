@@ -1,7 +1,9 @@
 """DreamerV3 actor-critic learned in imagination: lambda-returns over the imagined horizon from
 replayed posterior states, percentile return normalisation, a two-hot critic regularised toward
-its slow EMA copy, and an actor trained by backprop through the dynamics (continuous actions)
-or REINFORCE (discrete actions), with an entropy bonus."""
+its slow EMA copy, and an actor trained by backprop through the dynamics (continuous actions,
+`continuous_actor_grad: backprop`, DreamerV3's 2023 release) or REINFORCE (discrete actions, and
+continuous ones with `continuous_actor_grad: reinforce`, as DreamerV3's 2024 release does), with an
+entropy bonus."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from .distributions import (
     bounded_normal_sample,
     categorical_entropy,
     normal_entropy,
+    normal_log_prob,
     sample_onehot,
     unimix_probs,
 )
@@ -159,10 +162,20 @@ class Actor(nn.Module):
         mean, _ = bounded_normal_params(raw, self.config.actor_min_std, self.config.actor_max_std)
         return mean
 
-    def log_prob_entropy(self, feat: Latent, onehot: Tensor) -> tuple[Tensor, Tensor]:
-        """Discrete actions only: log pi(a | s) of one-hot actions and the entropy."""
-        probs = unimix_probs(self.net(feat), self.config.unimix)
-        return torch.log((probs * onehot).sum(-1)), categorical_entropy(probs)
+    def log_prob_entropy(self, feat: Latent, action: Tensor) -> tuple[Tensor, Tensor]:
+        """log pi(a | s) and the entropy: of one-hot actions (discrete), or of the unclipped
+        normal samples (continuous; see the `sample` extra of `Behavior._imagine`)."""
+        raw = self.net(feat)
+        if self.discrete:
+            probs = unimix_probs(raw, self.config.unimix)
+            return torch.log((probs * action).sum(-1)), categorical_entropy(probs)
+        mean, std = bounded_normal_params(raw, self.config.actor_min_std, self.config.actor_max_std)
+        return normal_log_prob(action, mean, std), normal_entropy(std)
+
+    @property
+    def reinforce(self) -> bool:
+        """Whether the actor learns by REINFORCE (else by backprop through the dynamics)."""
+        return self.discrete or self.config.continuous_actor_grad == "reinforce"
 
     def noise(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> Tensor:
         """Random numbers `sample` needs for a batch of leading shape `shape`."""
@@ -217,7 +230,8 @@ class Behavior(nn.Module):
         parameters only (see `DreamerAgent.train_step`)."""
         c = self.config
         horizon, n = c.imag_horizon, start.h.shape[0]
-        discrete = self.actor.discrete
+        reinforce = self.actor.reinforce
+        continuous_reinforce = reinforce and not self.actor.discrete
         noise = iter(self.actor.noise((horizon, n), generator, start.h.device))
         actor_net = self.actor.net
 
@@ -226,14 +240,18 @@ class Behavior(nn.Module):
             # the fused loop (RSSM.imagine), and the plain path detaches the state itself, so
             # the actor's objective never differentiates through its own later inputs.
             raw = actor_net.finish(first) if first is not None else actor_net(latent.detach())
-            action, entropy = self.actor.sample_from_output(raw, next(noise))
+            step_noise = next(noise)
+            action, entropy = self.actor.sample_from_output(raw, step_noise)
+            if continuous_reinforce:  # REINFORCE needs the unclipped sample's log-probability
+                mean, std = bounded_normal_params(raw, c.actor_min_std, c.actor_max_std)
+                return action, {"entropy": entropy, "sample": mean + std * step_noise}
             return action, {"entropy": entropy}
 
         reward_head, continue_head = world_model.reward_head, world_model.continue_head
         chunks = self._chunks(horizon + 1, n)
         with frozen(world_model):
             with frozen(self.critic.first):
-                if discrete:  # REINFORCE: no gradient through the imagined states
+                if reinforce:  # no gradient through the imagined states
                     with torch.no_grad():
                         imagined = world_model.rssm.imagine(policy, start, horizon, generator)
                     readout = Readout([reward_head, self.critic], None, [continue_head])
@@ -267,8 +285,8 @@ class Behavior(nn.Module):
     ) -> tuple[Tensor, Tensor | None, Tensor]:
         """Per-step critic loss (two-hot NLL of the lambda-return `target` plus the regulariser
         toward the slow critic's prediction) from the critic's logits of states 0..H-1 (the
-        groups `_imagine` returns, without state H), and the actor's log-probabilities (discrete
-        actions only) and entropies, each (H, N)."""
+        groups `_imagine` returns, without state H), and the actor's log-probabilities (REINFORCE
+        only) and entropies, each (H, N)."""
         c = self.config
         horizon, n = target.shape
         critic_losses, log_probs, entropies = [], [], []
@@ -286,13 +304,16 @@ class Behavior(nn.Module):
                 self.twohot.loss_from_log_probs(bins_log_probs, chunk_target)
                 + c.slow_critic_reg * self.twohot.loss_from_log_probs(bins_log_probs, slow_values)
             )
-            if self.actor.discrete:
-                actions = imagined.actions[steps].reshape(-1, self.actor.action_size)
+            if self.actor.reinforce:
+                if self.actor.discrete:
+                    actions = imagined.actions[steps].reshape(-1, self.actor.action_size)
+                else:
+                    actions = imagined.extras["sample"][steps].reshape(-1, self.actor.action_size)
                 log_prob, entropy = self.actor.log_prob_entropy(before, actions)
                 log_probs.append(log_prob)
                 entropies.append(entropy)
         critic_per_step = torch.cat(critic_losses).view(horizon, n)
-        if self.actor.discrete:
+        if self.actor.reinforce:
             return critic_per_step, torch.cat(log_probs).view(horizon, n), torch.cat(entropies).view(horizon, n)
         return critic_per_step, None, imagined.extras["entropy"]
 
@@ -322,7 +343,7 @@ class Behavior(nn.Module):
         low, high = self.return_norm.candidate(returns)
         scale = self.return_norm.scale(low, high)
         advantage = (returns - values[:-1].detach()) / scale
-        if self.actor.discrete:  # REINFORCE
+        if self.actor.reinforce:
             actor_objective = log_prob * advantage.detach()
         else:  # backprop through the dynamics: the returns carry the gradient
             actor_objective = advantage

@@ -63,6 +63,12 @@ class DreamerConfig(BaseModel):
     return_norm_high: float = Field(95.0, gt=0, le=100, description="upper percentile of the return range")
     return_norm_limit: float = Field(1.0, gt=0, description="returns are divided by max(limit, hi - lo)")
     discrete_actor_grad: Literal["reinforce"] = Field("reinforce", description="gradient for discrete actions")
+    # DreamerV3's 2023 release trains continuous actors by backprop through the dynamics; its 2024
+    # release uses REINFORCE for every action space. Backprop follows the local slope of the
+    # imagined reward, which a cliff (leaving the road) does not have until the car is over it.
+    continuous_actor_grad: Literal["backprop", "reinforce"] = Field(
+        "backprop", description="gradient for continuous actions: backprop through the dynamics or REINFORCE"
+    )
 
     # --- optimisers (Adam)
     model_lr: float = Field(1e-4, gt=0)
