@@ -7,6 +7,7 @@ closest to the subcommand wins.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import json
@@ -20,6 +21,7 @@ from typing import Annotated, Any, Callable, Optional
 import typer
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 DEFAULT_STORE = "artifacts"
 
@@ -136,6 +138,70 @@ SetOpt = Annotated[
     typer.Option("--set", help="Override one value, e.g. --set reward.c_pass=5 (repeatable; applied last).",
                  show_default=False),
 ]
+
+
+# --- options of the commands that work on a pair's stored assistants (eval, intent-swap) ------
+TrackOpt = Annotated[str, typer.Option("--track", help="Track name, alias or artifact id.")]
+PairOpt = Annotated[str, typer.Option("--pair", help="Intent pair: pass-stay or left-right.")]
+MainMethodOpt = Annotated[str, typer.Option("--method", help="The main method.")]
+BaselineOpt = Annotated[Optional[list[str]], typer.Option(
+    "--baseline", help="A method compared with the main one (repeatable).", show_default=False)]
+AssistantSeedsOpt = Annotated[Optional[list[int]], typer.Option(
+    "--seed", help="Training seed of the assistants (repeatable) [default: every stored seed].", show_default=False)]
+HumansOpt = Annotated[Optional[list[str]], typer.Option(
+    "--humans", help="Population of each intent of the pair, in order (id, prefix or alias) "
+                     "[default: humans/<track>/<intent>]; e.g. populations of another seed, which no assistant "
+                     "has seen.", show_default=False)]
+EnvsOpt = Annotated[int, typer.Option("--envs", min=1, max=64, help="Envs stepped together.")]
+
+
+def print_stage(p: dict[str, Any]) -> None:
+    """Progress of a staged pipeline (evaluation, intent swap): one line per stage on stderr."""
+    err_console.print(f"[{p['done'] + 1}/{p['total']}] {p['stage']}", highlight=False)
+
+
+class TrainingBars:
+    """Rich progress bars on stderr, one per training run of a command (an intent, a method).
+
+    A bar appears with its run's first progress report, so an argument error found while loading
+    (no such track, an ambiguous prefix) is printed alone; where stderr is not a terminal (logs)
+    a plain line is printed every 5 % instead."""
+
+    def __init__(self, cleanup: contextlib.ExitStack, total: int, return_label: str = "return") -> None:
+        self._bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                             TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console)
+        self._cleanup, self.total, self.return_label = cleanup, total, return_label
+        self._tasks: dict[str, Any] = {}
+        self._next_line: dict[str, float] = {}
+
+    def reporter(self, name: str) -> Callable[[dict[str, Any]], None]:
+        """The progress callback of run `name` (reports: env_steps, total, updates_per_s, recent_return)."""
+        def progress(p: dict[str, Any]) -> None:
+            if not self._bar.live.is_started:
+                self._bar.start()
+                self._cleanup.callback(self._bar.stop)
+            if name not in self._tasks:
+                self._tasks[name] = self._bar.add_task(name, total=self.total, stats="")
+                self._next_line[name] = 0.0
+            ret = p["recent_return"]
+            stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  {self.return_label} {ret:.1f}" if ret is not None else "")
+            self._bar.update(self._tasks[name], completed=p["env_steps"], stats=stats)
+            if not err_console.is_terminal and p["env_steps"] / p["total"] >= self._next_line[name]:
+                err_console.print(f"{name}: {p['env_steps']}/{p['total']} env steps, {stats}")
+                self._next_line[name] += 0.05
+        return progress
+
+    def finish(self, name: str, result: dict[str, Any], what: str) -> None:
+        """Close run `name`'s bar; a result reused from the store says so, and which code made it."""
+        if result["cached"]:
+            made = result["cached_from"]
+            commit = (made.get("git_commit") or "unknown commit")[:12]
+            err_console.print(f"{name}: reusing stored {what} {result['id'][:12]} (same run key), trained "
+                              f"{made.get('created')} by d2a {made.get('version')} at {commit}, "
+                              f"training code version {made.get('training_code_version')}", soft_wrap=True)
+        if name in self._tasks:
+            self._bar.update(self._tasks[name], completed=self.total,
+                             stats="(stored result)" if result["cached"] else "done")
 
 
 def report_error(message: str, code: int, kind: str, json_too: bool = True) -> None:

@@ -2,42 +2,46 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from d2a_cli.common import RunContext, err_console, out_console, with_common_options
+from d2a_cli.common import (
+    AssistantSeedsOpt,
+    BaselineOpt,
+    EnvsOpt,
+    HumansOpt,
+    MainMethodOpt,
+    PairOpt,
+    RunContext,
+    TrackOpt,
+    out_console,
+    print_stage,
+    with_common_options,
+)
 from d2a_core.pipelines.evaluate import METRICS
 
 
 @with_common_options(seed=False)
 def eval_assistants(
-    track: Annotated[str, typer.Option("--track", help="Track name, alias or artifact id.")],
-    pair: Annotated[str, typer.Option("--pair", help="Intent pair: pass-stay or left-right.")],
-    method: Annotated[str, typer.Option("--method", help="The main method.")] = "dream2assist",
-    baseline: Annotated[Optional[list[str]], typer.Option(
-        "--baseline", help="A method compared with the main one (repeatable).", show_default=False)] = None,
-    seeds: Annotated[Optional[list[int]], typer.Option(
-        "--seed", help="Training seed of the assistants to evaluate (repeatable) [default: every stored seed].",
-        show_default=False)] = None,
-    humans: Annotated[Optional[list[str]], typer.Option(
-        "--humans", help="Population of each intent of the pair, in order [default: humans/<track>/<intent>]; "
-                         "e.g. populations of another seed, which no assistant has seen.", show_default=False)] = None,
+    track: TrackOpt,
+    pair: PairOpt,
+    method: MainMethodOpt = "dream2assist",
+    baseline: BaselineOpt = None,
+    seeds: AssistantSeedsOpt = None,
+    humans: HumansOpt = None,
     episodes: Annotated[int, typer.Option("--episodes", min=1, help="Paired episodes per human.")] = 20,
     eval_seed: Annotated[int, typer.Option("--eval-seed", help="Seed of the evaluation episodes' env seeds.")] = 0,
-    envs: Annotated[int, typer.Option("--envs", min=1, max=64, help="Envs stepped together.")] = 8,
+    envs: EnvsOpt = 8,
     *,
     run: RunContext,
 ) -> None:
     """Paired evaluation: each human unassisted and with each assistant, on the same episodes."""
     from d2a_core.pipelines.evaluate import evaluate
 
-    def progress(p: dict[str, Any]) -> None:
-        err_console.print(f"[{p['done'] + 1}/{p['total']}] {p['stage']}", highlight=False)
-
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
-                      episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=progress)
+                      episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=print_stage)
 
     def render(r: dict[str, Any]) -> None:
         # shaped like the paper's Table 1: change vs the same human unassisted, mean +- std over humans

@@ -6,10 +6,9 @@ import contextlib
 from typing import Annotated, Any, Optional
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, err_console, out_console, with_common_options
+from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, TrainingBars, out_console, with_common_options
 from d2a_core import config as config_mod
 from d2a_core.training.methods import method_names
 
@@ -39,36 +38,12 @@ def train_assistant(
     resolved = config_mod.load(preset, config_file, overrides or [])
     store = run.store()
     results = []
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console)
-    total = resolved.config.assistant.env_steps
     with contextlib.ExitStack() as cleanup:
+        bars = TrainingBars(cleanup, resolved.config.assistant.env_steps, return_label="r^A")
         for name in method:
-            state: dict[str, Any] = {"task": None, "next": 0.0}
-
-            def progress(p: dict[str, Any], name=name, state=state) -> None:
-                if not bar.live.is_started:
-                    bar.start()
-                    cleanup.callback(bar.stop)
-                if state["task"] is None:
-                    state["task"] = bar.add_task(name, total=total, stats="")
-                ret = p["recent_return"]
-                stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  r^A {ret:.1f}" if ret is not None else "")
-                bar.update(state["task"], completed=p["env_steps"], stats=stats)
-                if not err_console.is_terminal and p["env_steps"] / p["total"] >= state["next"]:
-                    err_console.print(f"{name}: {p['env_steps']}/{p['total']} env steps, {stats}")
-                    state["next"] += 0.05
-
             result = train(store, track, pair, name, resolved, run.seed, humans=humans, device=run.device,
-                           progress=progress)
-            if result["cached"]:
-                made = result["cached_from"]
-                commit = (made.get("git_commit") or "unknown commit")[:12]
-                err_console.print(f"{name}: reusing stored assistant {result['id'][:12]} (same run key), trained "
-                                  f"{made.get('created')} by d2a {made.get('version')} at {commit}, "
-                                  f"training code version {made.get('training_code_version')}", soft_wrap=True)
-            if state["task"] is not None:
-                bar.update(state["task"], completed=total, stats="(stored result)" if result["cached"] else "done")
+                           progress=bars.reporter(name))
+            bars.finish(name, result, "assistant")
             results.append(result)
 
     def render(r: dict[str, Any]) -> None:

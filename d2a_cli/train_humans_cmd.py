@@ -6,10 +6,9 @@ import contextlib
 from typing import Annotated, Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, err_console, out_console, with_common_options
+from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, TrainingBars, out_console, with_common_options
 from d2a_core import config as config_mod
 from d2a_core.objectives.rewards import INTENTS
 
@@ -34,40 +33,14 @@ def train_humans(
     resolved = config_mod.load(preset, config_file, overrides or [])
     store = run.store()
     populations = []
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("{task.fields[stats]}"), TimeElapsedColumn(), console=err_console)
     # The lease keeps what this run creates or loads (track, replays, checkpoints not yet aliased)
     # safe from a concurrent `d2a artifacts gc` for as long as this process lives.
     with store.lease(), contextlib.ExitStack() as cleanup:
+        bars = TrainingBars(cleanup, resolved.config.humans.env_steps)
         for name in intent:
-            # the bar appears with the first progress report, so that an argument error found while
-            # loading the track (no such track, an ambiguous prefix) is printed alone
-            state: dict[str, Any] = {"task": None, "next": 0.0}
-
-            def progress(p: dict[str, Any], name=name, state=state) -> None:
-                if not bar.live.is_started:
-                    bar.start()
-                    cleanup.callback(bar.stop)
-                if state["task"] is None:
-                    state["task"] = bar.add_task(f"{name}", total=resolved.config.humans.env_steps, stats="")
-                ret = p["recent_return"]
-                stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  return {ret:.1f}" if ret is not None else "")
-                bar.update(state["task"], completed=p["env_steps"], stats=stats)
-                done = p["env_steps"] / p["total"]
-                if not err_console.is_terminal and done >= state["next"]:  # logs, not a live bar
-                    err_console.print(f"{p['intent']}: {p['env_steps']}/{p['total']} env steps, {stats}")
-                    state["next"] += 0.05
-
-            result = train_population(store, track, name, resolved, run.seed, device=run.device, progress=progress)
-            if result["cached"]:
-                made = result["cached_from"]
-                commit = (made.get("git_commit") or "unknown commit")[:12]
-                err_console.print(f"{name}: reusing stored population {result['id'][:12]} (same run key), trained "
-                                  f"{made.get('created')} by d2a {made.get('version')} at {commit}, "
-                                  f"training code version {made.get('training_code_version')}", soft_wrap=True)
-            if state["task"] is not None:
-                bar.update(state["task"], completed=resolved.config.humans.env_steps,
-                           stats="(stored result)" if result["cached"] else "done")
+            result = train_population(store, track, name, resolved, run.seed, device=run.device,
+                                      progress=bars.reporter(name))
+            bars.finish(name, result, "population")
             populations.append(result)
 
     def render(r: dict[str, Any]) -> None:

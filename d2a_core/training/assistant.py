@@ -46,7 +46,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
-from d2a_core.training.run_state import save_atomic
+from d2a_core.training.run_state import cached_result, save_atomic
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 
 RUN_FORMAT = 1
@@ -135,14 +135,9 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     # the sections the method depends on, as patched by the method (intent head, reward weights)
     config_record = {name: getattr(cfg, name).model_dump(mode="json") for name in method.config_sections}
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
-    done = [a for a in store.list("assistant-run") if a.labels.get("run_key") == key]
-    if done:
-        result = store.read_json(done[-1].id, "run.json")
-        provenance = done[-1].manifest.get("provenance", {})
-        result.update({k: v for k, v in provenance.get("notes", {}).items() if k in ("time_shares", "time_s")})
-        made_by = {"training_code_version": result.get("training_code_version"),
-                   "created": provenance.get("created"), **provenance.get("code", {})}
-        return dict(result, run_id=done[-1].id, resumed_from_env_step=None, cached=True, cached_from=made_by)
+    cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
+    if cached:
+        return cached
 
     if ac.torch_threads:
         torch.set_num_threads(ac.torch_threads)

@@ -46,7 +46,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.rollout import Collector, evaluate
-from d2a_core.training.run_state import save_atomic
+from d2a_core.training.run_state import cached_result, save_atomic
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
@@ -136,13 +136,9 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
     config_record = resolved.section(*SECTIONS)
     key = _run_key(bundle, intent, config_record, seed)
-    done = [a for a in store.list("population") if a.labels.get("run_key") == key]
-    if done:
-        result = store.read_json(done[-1].id, "population.json")
-        provenance = done[-1].manifest.get("provenance", {})
-        made_by = {"training_code_version": result.get("training_code_version"),
-                   "created": provenance.get("created"), **provenance.get("code", {})}
-        return dict(result, id=done[-1].id, resumed_from_env_step=None, cached=True, cached_from=made_by)
+    cached = cached_result(store, "population", key, "population.json")
+    if cached:
+        return cached
 
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
