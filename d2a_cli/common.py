@@ -202,6 +202,9 @@ class TrainingBars:
         if name in self._tasks:
             self._bar.update(self._tasks[name], completed=self.total,
                              stats="(stored result)" if result["cached"] else "done")
+        for moved in result.get("aliases_moved", []):
+            err_console.print(f"{name}: alias {moved['alias']} now names {moved['now'][:12]} (it named "
+                              f"{moved['previous'][:12]}, a run with another config, seed or code)", soft_wrap=True)
 
 
 def report_error(message: str, code: int, kind: str, json_too: bool = True) -> None:

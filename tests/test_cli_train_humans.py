@@ -86,6 +86,16 @@ def test_a_result_of_other_training_code_is_not_reused(track_store, monkeypatch)
     newer = train_population(store, "straightaway", "stay", resolved, seed=0)
     assert not newer["cached"] and newer["id"] != first["id"]
     assert newer["training_code_version"] == TRAINING_CODE_VERSION + 1
+    # the alias now names the newer run, and the result says which run it named before
+    assert store.resolve("humans/straightaway/stay") == newer["id"]
+    assert {"alias": "humans/straightaway/stay", "previous": first["id"], "now": newer["id"]} in newer["aliases_moved"]
+    # rerunning the first command answers from the store and points the aliases back at its result
+    monkeypatch.setattr(humans_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION)
+    again = train_population(store, "straightaway", "stay", resolved, seed=0)
+    assert again["cached"] and again["id"] == first["id"]
+    assert store.resolve("humans/straightaway/stay") == first["id"]
+    assert store.resolve("humans/straightaway/stay/expert") == first["expert"]
+    assert {"alias": "humans/straightaway/stay", "previous": newer["id"], "now": first["id"]} in again["aliases_moved"]
 
 
 def test_resume_after_sigkill(cli, track_store):
