@@ -6,6 +6,7 @@ warm-up and the world-model and behaviour seconds of each update, per model widt
 
     python benchmarks/train.py --units 128 512 --updates 5
     python benchmarks/train.py --loop-steps 4000        # the full loop on the straightaway
+    python benchmarks/train.py --units 128 --actor-grad backprop reinforce   # both actor gradients
 
 `--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
 ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
@@ -45,11 +46,13 @@ def _fill_replay(agent: DreamerAgent, steps: int, envs: int, seed: int) -> None:
         )
 
 
-def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.Namespace) -> dict:
+def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.Namespace,
+              actor_grad: str = "backprop") -> dict:
     """Time `updates` full updates of an agent of the given width after `warmup` updates."""
     config = DreamerConfig(
         units=units,
         deter=deter,
+        continuous_actor_grad=actor_grad,
         imag_starts=args.imag_starts,
         precision=args.precision,
         device=args.device,
@@ -166,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
     parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32")
     parser.add_argument("--imag-starts", type=int, default=None, help="imagination starts (default all 1024)")
+    parser.add_argument("--actor-grad", nargs="+", default=["backprop"], choices=["backprop", "reinforce"],
+                        help="continuous actor gradient(s) to time, each at every width")
     parser.add_argument("--obs-dim", type=int, default=40)
     parser.add_argument("--action-dim", type=int, default=2)
     parser.add_argument("--device", default="cpu")
@@ -182,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(report, sys.stdout, indent=2)
         print()
         return 0
-    results = [benchmark(u, args.deter or u, args.updates, args.warmup, args) for u in args.units]
+    results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, grad), actor_grad=grad)
+               for u in args.units for grad in args.actor_grad]
     report = {
         "benchmark": "dreamer_full_update",
         "batch": "16x64",
