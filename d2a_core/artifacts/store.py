@@ -642,6 +642,21 @@ class Store:
         return node(self.resolve(ref))
 
     # ----------------------------------------------------------------------------- refs
+    def point_aliases(self, targets: dict[str, str]) -> list[dict[str, str]]:
+        """Point each alias at its artifact (tagging only those that point elsewhere) and return
+        the ones that named another artifact before, as `{"alias", "previous", "now"}`."""
+        moved = []
+        for alias, art_id in targets.items():
+            try:
+                previous = self.resolve(alias)
+            except NotFoundError:
+                previous = None
+            if previous != art_id:
+                self.tag(art_id, alias)
+                if previous is not None:
+                    moved.append({"alias": alias, "previous": previous, "now": art_id})
+        return moved
+
     def tag(self, ref: str, alias: str) -> str:
         """Point `alias` at the artifact `ref` resolves to (atomically replacing an old target)."""
         problem = alias_problem(alias)

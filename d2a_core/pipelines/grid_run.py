@@ -318,7 +318,11 @@ def _outcome(spec: CellSpec, code: int, out: bytes, log: Path) -> dict[str, Any]
             ids, main = produced(spec.kind, result)
         except (KeyError, TypeError, ValueError) as exc:
             return {"status": "failed", "exit_code": code, "error": f"unexpected --json result ({exc!r})"}
-        _point_aliases(spec.store, ids)
+        # every alias at what the cell produced, even where the subcommand answered from the
+        # store without re-tagging (an alias moved since would otherwise stay where it was)
+        from d2a_core.artifacts import Store
+
+        Store(spec.store).point_aliases(ids)
         return {"status": "ran", "ids": ids, "id": main, "result": result, "exit_code": 0}
     if isinstance(result, dict) and isinstance(result.get("error"), dict):
         message = result["error"].get("message", "")
@@ -327,22 +331,6 @@ def _outcome(spec: CellSpec, code: int, out: bytes, log: Path) -> dict[str, Any]
     else:
         message = _last_line(log) or f"exit code {code}"
     return {"status": "failed", "exit_code": code, "error": f"{message} (log: {log})"}
-
-
-def _point_aliases(store_root: str, ids: dict[str, str]) -> None:
-    """Point each alias at what the cell produced: a subcommand that returns a stored result
-    (`cached`) does not re-tag, so an alias moved since would otherwise stay where it was."""
-    from d2a_core.artifacts import Store
-    from d2a_core.errors import NotFoundError
-
-    store = Store(store_root)
-    for alias, art_id in ids.items():
-        try:
-            current = store.resolve(alias)
-        except NotFoundError:
-            current = None
-        if current != art_id:
-            store.tag(art_id, alias)
 
 
 # --------------------------------------------------------------------------- filesystem checks

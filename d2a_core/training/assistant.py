@@ -46,7 +46,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
-from d2a_core.training.run_state import cached_result, point_aliases, save_atomic
+from d2a_core.training.run_state import cached_result, save_atomic
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 
 RUN_FORMAT = 1
@@ -137,8 +137,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
     cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
     if cached:
-        return dict(cached, aliases_moved=point_aliases(store, _aliases(bundle.track.name, pair, method.name, seed,
-                                                                        cached["id"], cached["run_id"])))
+        names = _aliases(bundle.track.name, pair, method.name, seed, cached["id"], cached["run_id"])
+        return dict(cached, aliases_moved=store.point_aliases(names))
 
     if ac.torch_threads:
         torch.set_num_threads(ac.torch_threads)
@@ -268,7 +268,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
             writer.note(name, result[name])
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
-    moved = point_aliases(store, _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id))
+    names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id)
+    moved = store.point_aliases(names)
     state_path.unlink(missing_ok=True)
     store.release_run(key)
     return dict(result, run_id=writer.artifact.id, cached=False, aliases_moved=moved)

@@ -46,7 +46,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.rollout import Collector, evaluate
-from d2a_core.training.run_state import cached_result, point_aliases, save_atomic
+from d2a_core.training.run_state import cached_result, save_atomic
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
@@ -138,8 +138,8 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     key = _run_key(bundle, intent, config_record, seed)
     cached = cached_result(store, "population", key, "population.json")
     if cached:
-        return dict(cached, aliases_moved=point_aliases(store, _aliases(bundle.track.name, intent, cached["id"],
-                                                                        cached["expert"])))
+        names = _aliases(bundle.track.name, intent, cached["id"], cached["expert"])
+        return dict(cached, aliases_moved=store.point_aliases(names))
 
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
@@ -225,7 +225,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
         writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     population = writer.artifact
-    moved = point_aliases(store, _aliases(bundle.track.name, intent, population.id, expert["id"]))
+    moved = store.point_aliases(_aliases(bundle.track.name, intent, population.id, expert["id"]))
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
     state_path.unlink(missing_ok=True)
     store.release_run(key)

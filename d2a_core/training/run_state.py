@@ -9,7 +9,6 @@ from typing import Any, Optional
 import torch
 
 from d2a_core.artifacts import Store
-from d2a_core.errors import NotFoundError
 
 
 def save_atomic(obj: Any, path: Path) -> None:
@@ -39,20 +38,3 @@ def cached_result(store: Store, kind: str, run_key: str, result_file: str, id_ke
                "created": provenance.get("created"), **provenance.get("code", {})}
     return dict(result, **{id_key: done[-1].id}, resumed_from_env_step=None, cached=True, cached_from=made_by)
 
-
-def point_aliases(store: Store, targets: dict[str, str]) -> list[dict[str, str]]:
-    """Point each alias at its artifact id and return the aliases that pointed elsewhere before
-    (`{"alias", "previous", "now"}`): a run with another config or seed that held the name, which
-    the caller tells the user about. A rerun answered from the store points them back, so the
-    aliases always name the result of the command run last."""
-    moved = []
-    for alias, art_id in targets.items():
-        try:
-            previous = store.resolve(alias)
-        except NotFoundError:
-            previous = None
-        if previous != art_id:
-            store.tag(art_id, alias)
-            if previous is not None:
-                moved.append({"alias": alias, "previous": previous, "now": art_id})
-    return moved
