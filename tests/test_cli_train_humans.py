@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -23,14 +24,32 @@ SMOKE = ("--preset", "smoke")
 
 
 @pytest.fixture(scope="module")
-def track_store(tmp_path_factory):
-    store = tmp_path_factory.mktemp("humans") / "store"
+def track_template(tmp_path_factory):
+    store = tmp_path_factory.mktemp("humans-template") / "store"
     res = run_cli("make-track", "straightaway", *SMOKE, "--json", store=store)
     assert res.code == 0, res.stderr
     return store
 
 
-def test_train_humans_population_and_idempotence(cli, track_store):
+@pytest.fixture(scope="module")
+def track_store(track_template, tmp_path_factory):
+    """A store with the track, shared by this module's tests (they train different intents)."""
+    store = tmp_path_factory.mktemp("humans") / "store"
+    shutil.copytree(track_template, store)
+    return store
+
+
+@pytest.fixture
+def fresh_track_store(track_template, tmp_path):
+    """A store with only the track: for tests that must train from nothing, whatever ran before
+    them on this xdist worker."""
+    store = tmp_path / "store"
+    shutil.copytree(track_template, store)
+    return store
+
+
+def test_train_humans_population_and_idempotence(cli, fresh_track_store):
+    track_store = fresh_track_store
     res = cli("train-humans", "--intent", "pass", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json",
               store=track_store)
     assert res.code == 0, res.stderr
