@@ -18,6 +18,10 @@ class HumansConfig(Section):
     eval_envs: int = Field(4, ge=1, le=64)
     log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")
+    model_lr: float | None = Field(
+        None, gt=0,
+        description="world-model learning rate of the drivers (unset: dreamer.model_lr); the assistant keeps dreamer.model_lr",
+    )
 
 
 class AssistantConfig(Section):

@@ -144,7 +144,9 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
     keep_freed_memory()
-    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device})
+    # A short run's world model must fit rare crash terminals in few updates (docs/results.md,
+    # "Why left fails"); the drivers may learn faster than the assistant, which shares `dreamer`.
+    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device, "model_lr": hc.model_lr or cfg.dreamer.model_lr})
 
     def make_env() -> RaceEnv:
         return RaceEnv(bundle.track, bundle.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
