@@ -20,7 +20,7 @@ from d2a_cli.common import (
     print_stage,
     with_common_options,
 )
-from d2a_core.pipelines.evaluate import METRICS
+from d2a_core.pipelines.evaluate import CRITERION, METRICS
 
 
 @with_common_options(seed=False)
@@ -47,7 +47,8 @@ def eval_assistants(
         # shaped like the paper's Table 1: change vs the same human unassisted, mean +- std over humans
         for intent in r["evaluations"][0]["intents"] if r["evaluations"] else []:
             for group in ("imperfect", "near_perfect"):
-                table = Table("method", "seed", *(f"d {m}" for m in METRICS), "F1",
+                table = Table("method", "seed", *(f"d {m}" for m in METRICS), f"{_CRITERION_NAMES[intent]}: u -> a",
+                              "F1",
                               title=f"{intent}, {group.replace('_', '-')} humans: change with assistance")
                 for e in r["evaluations"]:
                     block = e["intents"][intent].get(group)
@@ -56,7 +57,20 @@ def eval_assistants(
                     f1 = e["intents"][intent]["intent_f1"]
                     table.add_row(e["method"], str(e["seed"]),
                                   *(f"{block[m]['mean']:+.2f} ± {block[m]['std']:.2f}" for m in METRICS),
+                                  _criterion_change(block),
                                   "-" if f1 is None else f"{f1:.3f}")
                 out_console.print(table)
 
     run.emit(result, render)
+
+
+# the rate each intent's drivers are judged by (`d2a_core.evaluation.criteria`)
+_CRITERION_NAMES = {"pass": "finished ahead", "stay": "finished never ahead", "left": "held left",
+                    "right": "held right"}
+
+
+def _criterion_change(block: dict[str, Any]) -> str:
+    before, change = block.get(f"{CRITERION}_unassisted"), block.get(CRITERION)
+    if before is None or change is None or before["mean"] is None:
+        return "-"  # an evaluation stored before the criterion was recorded
+    return f"{before['mean']:.2f} -> {before['mean'] + change['mean']:.2f}"

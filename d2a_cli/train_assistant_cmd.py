@@ -51,19 +51,26 @@ def train_assistant(
             intents = res["intents"]
             table = Table("id", "step", "F1", *(f"{i} weak gain m" for i in intents),
                           *(f"{i} expert ratio" for i in intents),
+                          *(f"{i} criterion weak | expert" for i in intents),
                           title=f"assistants/{res['track']}/{res['pair']}/{res['method']}/seed{res['seed']}")
             for c in res["checkpoints"]:
                 m = c["metrics"]
                 f1 = m.get("intent_f1")
                 table.add_row(c["id"][:8], str(c["env_step"]), "-" if f1 is None else f"{f1:.3f}",
                               *(_num(m.get(f"{i}/weak/progress_gain")) for i in intents),
-                              *(_num(m.get(f"{i}/expert/progress_ratio"), 3) for i in intents))
+                              *(_num(m.get(f"{i}/expert/progress_ratio"), 3) for i in intents),
+                              *(f"{_change(m, f'{i}/weak')} | {_change(m, f'{i}/expert')}" for i in intents))
             out_console.print(table)
             if res.get("time_shares"):
                 shares = ", ".join(f"{k} {v:.0%}" for k, v in res["time_shares"].items())
                 out_console.print(f"wall time: {shares}")
 
     run.emit({"assistants": results}, render)
+
+
+def _change(metrics: dict[str, Any], key: str) -> str:
+    """The intent criterion unassisted -> assisted (the rate a driver of that intent is judged by)."""
+    return f"{_num(metrics.get(f'{key}/criterion_unassisted'), 2)}->{_num(metrics.get(f'{key}/criterion_assisted'), 2)}"
 
 
 def _num(value: float | None, digits: int = 1) -> str:

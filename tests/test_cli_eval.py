@@ -10,7 +10,7 @@ import pytest
 
 from d2a_core.artifacts import Store
 from d2a_core.evaluation.paired import select_humans
-from d2a_core.pipelines.evaluate import METRICS, evaluate
+from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 from d2a_core.sim.episode_log_reader import read_episode
 
 from d2a_test_helpers import copy_store
@@ -95,7 +95,7 @@ def test_an_assistant_that_outputs_zeros_changes_nothing(eval_store, monkeypatch
     assert zero.calls > 0 and e["humans"]
     for human in e["humans"]:
         assert human["episodes"] == 2
-        assert all(human["delta"][m] == 0.0 for m in METRICS), human
+        assert all(human["delta"][m] == 0.0 for m in (*METRICS, CRITERION)), human
         assert human["unassisted"] == human["assisted"]
     for block in e["intents"].values():
         for group in ("imperfect", "near_perfect"):
@@ -113,15 +113,20 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
         assert e["assistant"] == store.resolve(f"assistants/straightaway/pass-stay/{e['method']}/seed0")
         for intent in ("pass", "stay"):
             block = e["intents"][intent]
-            assert set(block["imperfect"]) == set(METRICS)
+            assert set(block["imperfect"]) == {*METRICS, CRITERION, f"{CRITERION}_unassisted"}
             assert set(block["imperfect"]["progress_m"]) == {"mean", "std"}
             assert (block["intent_f1"] is None) == (e["method"] == "dreamer")
         groups = {(h["intent"], h["group"]) for h in e["humans"]}
         assert ("pass", "imperfect") in groups and ("stay", "near_perfect") in groups
-        for h in e["humans"]:
+        episodes = store.read_json(e["id"], "eval.json")["unassisted"]
+        for i, h in enumerate(e["humans"]):
             assert set(h) >= {"id", "intent", "group", "unassisted", "assisted", "delta"}
             assert h["delta"]["progress_m"] == pytest.approx(h["assisted"]["progress_m"] - h["unassisted"]["progress_m"],
                                                              abs=1e-5)
+            # the human's own intent criterion, from its episodes (pass: finished ahead)
+            key = {"pass": "finished_ahead", "stay": "finished_never_ahead"}[h["intent"]]
+            mine = [r for r in episodes if r["human"] == i]
+            assert h["unassisted"][CRITERION] == pytest.approx(np.mean([r[key] for r in mine]), abs=1e-6)
         art = store.get(e["id"])
         assert art.kind == "evaluation" and e["assistant"] in art.inputs
         assert set(h["id"] for h in e["humans"]) <= set(art.inputs)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from d2a_core.evaluation.criteria import performance_fractions
+from d2a_core.evaluation.criteria import criterion_value, performance_fractions
 
 WEAKEST = 5
 """Imperfect humans per intent in the panel (the paper's protocol: the five weakest checkpoints)."""
@@ -150,7 +150,8 @@ def paired_summary(humans: Sequence[PanelHuman], unassisted: Sequence[Mapping[st
 
     `humans` is the panel; rows carry `human` as an index into it. Per intent: the mean progress
     unassisted and assisted and the mean paired gain of the weak humans; the expert's progress
-    ratio assisted / unassisted; finish and criterion-relevant rates of both conditions. Overall:
+    ratio assisted / unassisted; finish and criterion-relevant rates of both conditions, and the
+    intent's own criterion (`criteria.criterion_value`) in both. Overall:
     the per-step intent F1 and accuracy of the assisted episodes (when the assistant infers one)."""
     base = {(r["human"], r["seed"]): r for r in unassisted}
     pairs = [(base[(r["human"], r["seed"])], r) for r in assisted if (r["human"], r["seed"]) in base]
@@ -170,6 +171,8 @@ def paired_summary(humans: Sequence[PanelHuman], unassisted: Sequence[Mapping[st
                            "held_left", "held_right", "return"):
                 out[f"{key}/{metric}_unassisted"] = _mean([u[metric] for u, _ in chosen])
                 out[f"{key}/{metric}_assisted"] = _mean([a[metric] for _, a in chosen])
+            out[f"{key}/criterion_unassisted"] = _mean([criterion_value(intent, u) for u, _ in chosen])
+            out[f"{key}/criterion_assisted"] = _mean([criterion_value(intent, a) for _, a in chosen])
             out[f"{key}/intervention"] = _mean([a["intervention"] for _, a in chosen])
             if role == "expert":
                 total_u = float(np.sum(u_prog))

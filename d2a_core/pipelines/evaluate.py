@@ -33,6 +33,7 @@ import numpy as np
 
 from d2a_core.artifacts import Store, canonical_json
 from d2a_core.errors import NotFoundError, UsageError
+from d2a_core.evaluation.criteria import criterion_value
 from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
@@ -43,6 +44,11 @@ from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCo
 
 EVAL_FORMAT = 1
 METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s")
+# ... and the human's own intent criterion (`evaluation.criteria.criterion_value`: finished ahead
+# for pass, finished never ahead for stay, the side share for left/right), so a table shows whether
+# assistance served the intent, not only the progress.
+CRITERION = "intent_criterion"
+SUMMARY_METRICS = (*METRICS, CRITERION)
 """The paper's Table 1 metrics, per human: means over its episodes; `return` is under the human's
 own objective (r^task + r^intent)."""
 ENV_SECTIONS = ("env", "reward", "vehicle", "world")
@@ -96,8 +102,10 @@ def _per_human(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted
         mine = [(base[(r["human"], r["seed"])], r) for r in assisted if r["human"] == h]
         u = {m: round(float(np.mean([x[m] for x, _ in mine])), 6) for m in METRICS}
         a = {m: round(float(np.mean([y[m] for _, y in mine])), 6) for m in METRICS}
+        u[CRITERION] = round(float(np.mean([criterion_value(human.intent, x) for x, _ in mine])), 6)
+        a[CRITERION] = round(float(np.mean([criterion_value(human.intent, y) for _, y in mine])), 6)
         row = {**vars(human), "episodes": len(mine), "unassisted": u, "assisted": a,
-               "delta": {m: round(a[m] - u[m], 6) for m in METRICS}}
+               "delta": {m: round(a[m] - u[m], 6) for m in SUMMARY_METRICS}}
         accuracy = [y["intent_accuracy"] for _, y in mine if "intent_accuracy" in y]
         if accuracy:
             row["intent_accuracy"] = round(float(np.mean(accuracy)), 6)
@@ -108,7 +116,8 @@ def _per_human(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted
 def summarise(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted: Sequence[dict],
               intents: Sequence[str]) -> dict[str, Any]:
     """Per intent and group, mean and std over humans of each metric's change (assisted minus
-    unassisted, per human over its paired episodes); per-class and macro per-step intent F1."""
+    unassisted, per human over its paired episodes) and of the unassisted intent criterion;
+    per-class and macro per-step intent F1."""
     per_human = _per_human(humans, unassisted, assisted)
     counts = intent_confusion(assisted, len(intents))
     has_estimate = bool(counts.sum())
@@ -120,7 +129,8 @@ def summarise(humans: Sequence[TestHuman], unassisted: Sequence[dict], assisted:
         for group in ("imperfect", "near_perfect"):
             rows = [r for r in per_human if r["intent"] == intent and r["group"] == group]
             if rows:
-                block[group] = {m: _stats([r["delta"][m] for r in rows]) for m in METRICS}
+                block[group] = {m: _stats([r["delta"][m] for r in rows]) for m in SUMMARY_METRICS}
+                block[group][f"{CRITERION}_unassisted"] = _stats([r["unassisted"][CRITERION] for r in rows])
         f1 = f1_of_class(counts, label) if has_estimate else None
         block["intent_f1"] = None if f1 is None else round(f1, 6)
         out["intents"][intent] = block

@@ -59,5 +59,21 @@ def test_summary_pairs_by_spec_not_by_order():
     assert out["pass/expert/progress_gain"] == pytest.approx(-2.0)
     assert out["pass/expert/progress_ratio"] == pytest.approx((3 * 111 - 6) / (3 * 111), abs=1e-6)
     assert out["pass/weak/intervention"] == 0.5
+    # each intent's own criterion, unassisted and assisted
+    assert out["pass/weak/criterion_unassisted"] == 0.0 and out["stay/expert/criterion_assisted"] == 0.0
     assert out["intent_confusion"] == [[18, 6], [0, 24]]
     assert out["intent_accuracy"] == pytest.approx(42 / 48)
+
+
+def test_summary_reports_each_intents_own_criterion():
+    pops = [population("pass", [0, 10], expert=1), population("stay", [0, 10], expert=1)]
+    humans = panel(pops, ("pass", "stay"), weakest=1)  # pass0, pass1 (expert), stay0, stay1 (expert)
+    # the pass expert finishes ahead in 2 of 2 alone and 0 of 2 assisted (the assistant blocks it);
+    # the stay expert never gets ahead either way; finished_never_ahead does not count for pass
+    unassisted = [row(h, s, 100.0, humans[h].label, finished_ahead=float(h == 1), finished_never_ahead=float(h != 1))
+                  for h in range(4) for s in range(2)]
+    assisted = [row(h, s, 100.0, humans[h].label, finished_never_ahead=1.0) for h in range(4) for s in range(2)]
+    out = paired_summary(humans, unassisted, assisted, ("pass", "stay"))
+    assert out["pass/expert/criterion_unassisted"] == 1.0 and out["pass/expert/criterion_assisted"] == 0.0
+    assert out["pass/weak/criterion_unassisted"] == 0.0 and out["pass/weak/criterion_assisted"] == 0.0
+    assert out["stay/expert/criterion_unassisted"] == 1.0 and out["stay/expert/criterion_assisted"] == 1.0
