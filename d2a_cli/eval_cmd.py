@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import typer
-from rich.table import Table
+from rich.table import Column, Table
 
 from d2a_cli.common import (
     AssistantSeedsOpt,
@@ -44,25 +44,29 @@ def eval_assistants(
                       episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=print_stage)
 
     def render(r: dict[str, Any]) -> None:
-        # shaped like the paper's Table 1: change vs the same human unassisted, mean +- std over humans
+        # the paper's Table 1 transposed (one column per assistant, so it fits a terminal): the
+        # change against the same human unassisted, mean ± std over humans
         for intent in r["evaluations"][0]["intents"] if r["evaluations"] else []:
             for group in ("imperfect", "near_perfect"):
-                table = Table("method", "seed", *(f"d {m}" for m in METRICS), f"{_CRITERION_NAMES[intent]}: u -> a",
-                              "F1",
-                              title=f"{intent}, {group.replace('_', '-')} humans: change with assistance")
-                for e in r["evaluations"]:
-                    block = e["intents"][intent].get(group)
-                    if block is None:
-                        continue
-                    f1 = e["intents"][intent]["intent_f1"]
-                    table.add_row(e["method"], str(e["seed"]),
-                                  *(f"{block[m]['mean']:+.2f} ± {block[m]['std']:.2f}" for m in METRICS),
-                                  _criterion_change(block),
-                                  "-" if f1 is None else f"{f1:.3f}")
+                shown = [e for e in r["evaluations"] if e["intents"][intent].get(group) is not None]
+                if not shown:
+                    continue
+                table = Table("", *(Column(f"{e['method']} seed {e['seed']}", no_wrap=True) for e in shown),
+                              title=f"{intent}, {group.replace('_', '-')} humans: change with assistance",
+                              caption="Δ: assisted - unassisted, mean ± std over humans")
+                blocks = [e["intents"][intent][group] for e in shown]
+                for m in METRICS:
+                    table.add_row(f"Δ {_SHORT[m]}", *(f"{b[m]['mean']:+.2f} ± {b[m]['std']:.2f}" for b in blocks))
+                table.add_row(f"{_CRITERION_NAMES[intent]}, unassisted → assisted", *(_criterion_change(b) for b in blocks))
+                table.add_row("intent F1", *("-" if e["intents"][intent]["intent_f1"] is None
+                                             else f"{e['intents'][intent]['intent_f1']:.3f}" for e in shown))
                 out_console.print(table)
 
     run.emit(result, render)
 
+
+_SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate",
+          "intervention": "intervention", "mean_speed_m_s": "mean speed (m/s)"}
 
 # the rate each intent's drivers are judged by (`d2a_core.evaluation.criteria`)
 _CRITERION_NAMES = {"pass": "finished ahead", "stay": "finished never ahead", "left": "held left",
@@ -73,4 +77,4 @@ def _criterion_change(block: dict[str, Any]) -> str:
     before, change = block.get(f"{CRITERION}_unassisted"), block.get(CRITERION)
     if before is None or change is None or before["mean"] is None:
         return "-"  # an evaluation stored before the criterion was recorded
-    return f"{before['mean']:.2f} -> {before['mean'] + change['mean']:.2f}"
+    return f"{before['mean']:.2f}→{before['mean'] + change['mean']:.2f}"

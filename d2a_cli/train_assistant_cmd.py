@@ -6,7 +6,7 @@ import contextlib
 from typing import Annotated, Any, Optional
 
 import typer
-from rich.table import Table
+from rich.table import Column, Table
 
 from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, TrainingBars, out_console, with_common_options
 from d2a_core import config as config_mod
@@ -49,17 +49,21 @@ def train_assistant(
     def render(r: dict[str, Any]) -> None:
         for res in r["assistants"]:
             intents = res["intents"]
-            table = Table("id", "step", "F1", *(f"{i} weak gain m" for i in intents),
-                          *(f"{i} expert ratio" for i in intents),
-                          *(f"{i} criterion weak | expert" for i in intents),
-                          title=f"assistants/{res['track']}/{res['pair']}/{res['method']}/seed{res['seed']}")
+            # one row per checkpoint and intent, so the table fits an 80-column terminal
+            table = Table(Column("id", no_wrap=True, min_width=8), "step", "F1", "intent", "weak gain m", "expert ratio",
+                          *(Column(name, no_wrap=True, min_width=9) for name in ("crit. weak", "crit. expert")),
+                          title=f"assistants/{res['track']}/{res['pair']}/{res['method']}/seed{res['seed']}",
+                          caption="crit.: the intent's own criterion, unassisted → assisted")
             for c in res["checkpoints"]:
                 m = c["metrics"]
                 f1 = m.get("intent_f1")
-                table.add_row(c["id"][:8], str(c["env_step"]), "-" if f1 is None else f"{f1:.3f}",
-                              *(_num(m.get(f"{i}/weak/progress_gain")) for i in intents),
-                              *(_num(m.get(f"{i}/expert/progress_ratio"), 3) for i in intents),
-                              *(f"{_change(m, f'{i}/weak')} | {_change(m, f'{i}/expert')}" for i in intents))
+                for k, i in enumerate(intents):
+                    first = k == 0
+                    table.add_row(c["id"][:8] if first else "", str(c["env_step"]) if first else "",
+                                  ("-" if f1 is None else f"{f1:.3f}") if first else "", i,
+                                  _num(m.get(f"{i}/weak/progress_gain")), _num(m.get(f"{i}/expert/progress_ratio"), 3),
+                                  _change(m, f"{i}/weak"), _change(m, f"{i}/expert"),
+                                  end_section=k == len(intents) - 1)
             out_console.print(table)
             if res.get("time_shares"):
                 shares = ", ".join(f"{k} {v:.0%}" for k, v in res["time_shares"].items())
@@ -69,8 +73,8 @@ def train_assistant(
 
 
 def _change(metrics: dict[str, Any], key: str) -> str:
-    """The intent criterion unassisted -> assisted (the rate a driver of that intent is judged by)."""
-    return f"{_num(metrics.get(f'{key}/criterion_unassisted'), 2)}->{_num(metrics.get(f'{key}/criterion_assisted'), 2)}"
+    """The intent criterion unassisted → assisted (the rate a driver of that intent is judged by)."""
+    return f"{_num(metrics.get(f'{key}/criterion_unassisted'), 2)}→{_num(metrics.get(f'{key}/criterion_assisted'), 2)}"
 
 
 def _num(value: float | None, digits: int = 1) -> str:

@@ -166,6 +166,9 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
     again = cli("eval", *PAIR, "--seed", "0", "--episodes", "2", "--json", store=eval_store)
     assert again.code == 0 and again.json["evaluations"][0]["cached"]
     assert again.json["evaluations"][0]["id"] == d2a["id"]
+    # the human-readable table (cached, so instant): the intent criterion before -> after
+    table = cli("eval", *PAIR, "--seed", "0", "--episodes", "2", store=eval_store)
+    assert table.code == 0 and "finished ahead" in table.stdout and "→" in table.stdout
 
 
 def test_eval_errors_name_what_to_run(cli, eval_store):
