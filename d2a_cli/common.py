@@ -175,7 +175,8 @@ class TrainingBars:
         self._next_line: dict[str, float] = {}
 
     def reporter(self, name: str) -> Callable[[dict[str, Any]], None]:
-        """The progress callback of run `name` (reports: env_steps, total, updates_per_s, recent_return)."""
+        """The progress callback of run `name` (reports: env_steps, total, updates_per_s, recent_return
+        and, optionally, recent_progress_m: the metres the recent episodes reached)."""
         def progress(p: dict[str, Any]) -> None:
             if not self._bar.live.is_started:
                 self._bar.start()
@@ -184,7 +185,9 @@ class TrainingBars:
                 self._tasks[name] = self._bar.add_task(name, total=self.total, stats="")
                 self._next_line[name] = 0.0
             ret = p["recent_return"]
-            stats = f"{p['updates_per_s']:.2f} upd/s" + (f"  {self.return_label} {ret:.1f}" if ret is not None else "")
+            reached = p.get("recent_progress_m")
+            stats = (f"{p['updates_per_s']:.2f} upd/s" + (f"  {self.return_label} {ret:.1f}" if ret is not None else "")
+                     + (f"  reached {reached:.0f} m" if reached is not None else ""))
             self._bar.update(self._tasks[name], completed=p["env_steps"], stats=stats)
             if not err_console.is_terminal and p["env_steps"] / p["total"] >= self._next_line[name]:
                 err_console.print(f"{name}: {p['env_steps']}/{p['total']} env steps, {stats}")

@@ -55,6 +55,9 @@ def test_train_humans_population_and_idempotence(cli, fresh_track_store):
     assert res.code == 0, res.stderr
     pops = res.json["populations"]
     assert [p["intent"] for p in pops] == ["pass", "stay"]
+    # progress on stderr (plain lines, as stderr is not a terminal), with the metres reached
+    lines = [line for line in res.stderr.splitlines() if line.startswith("pass: ") and "env steps" in line]
+    assert lines and "upd/s" in lines[-1] and " m" in lines[-1].split("reached")[-1]
     store = Store(track_store)
     track_id = store.resolve("track/straightaway")
     for pop in pops:

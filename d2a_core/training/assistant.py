@@ -230,7 +230,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
                 updates = getattr(agent, "updates_done", 0)
                 progress({"method": method.name, "env_steps": env_steps, "total": ac.env_steps,
                           "updates_per_s": (updates - start_updates) / elapsed,
-                          "recent_return": float(np.mean([e["assist/total"] for e in recent])) if recent else None})
+                          "recent_return": float(np.mean([e["assist/total"] for e in recent])) if recent else None,
+                          "recent_progress_m": float(np.mean([e["progress_m"] for e in recent])) if recent else None})
             if env_steps >= pending[0]:
                 pending.pop(0)
                 started = time.perf_counter()

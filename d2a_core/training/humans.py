@@ -194,7 +194,9 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
                 elapsed = max(time.monotonic() - start_time, 1e-9)
                 progress({"intent": intent, "env_steps": env_steps, "total": hc.env_steps,
                           "updates_per_s": (agent.updates_done - start_updates) / elapsed,
-                          "recent_return": float(np.mean([e["return"] for e in recent])) if recent else None})
+                          "recent_return": float(np.mean([e["return"] for e in recent])) if recent else None,
+                          # metres reached tell a stuck run from a slow one on a long track
+                          "recent_progress_m": float(np.mean([e["progress_m"] for e in recent])) if recent else None})
             if env_steps >= pending[0]:
                 pending.pop(0)
                 checkpoints.append(_store_checkpoint(store, agent, bundle, make_env, intent, env_steps, hc,
