@@ -6,6 +6,7 @@ import contextlib
 from typing import Annotated, Any, Optional
 
 import typer
+from rich import box
 from rich.table import Column, Table
 
 from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, TrainingBars, out_console, with_common_options
@@ -50,10 +51,13 @@ def train_assistant(
         for res in r["assistants"]:
             intents = res["intents"]
             # one row per checkpoint and intent, so the table fits an 80-column terminal
-            table = Table(Column("id", no_wrap=True, min_width=8), "step", "F1", "intent", "weak gain m", "expert ratio",
-                          *(Column(name, no_wrap=True, min_width=9) for name in ("crit. weak", "crit. expert")),
+            table = Table(*(Column(name, no_wrap=True) for name in (
+                              "id", "step", "F1", "intent", "gain w", "ratio e", "crit. w", "crit. e")),
+                          box=box.SIMPLE_HEAD,
                           title=f"assistants/{res['track']}/{res['pair']}/{res['method']}/seed{res['seed']}",
-                          caption="crit.: the intent's own criterion, unassisted → assisted")
+                          caption="gain w: progress gained by the weak drivers (m); ratio e: the expert's progress "
+                                  "assisted / unassisted; crit.: the intent's own criterion, unassisted → assisted "
+                                  "(w: weak drivers, e: expert)")
             for c in res["checkpoints"]:
                 m = c["metrics"]
                 f1 = m.get("intent_f1")

@@ -151,7 +151,8 @@ def paired_summary(humans: Sequence[PanelHuman], unassisted: Sequence[Mapping[st
     `humans` is the panel; rows carry `human` as an index into it. Per intent: the mean progress
     unassisted and assisted and the mean paired gain of the weak humans; the expert's progress
     ratio assisted / unassisted; finish and criterion-relevant rates of both conditions, and the
-    intent's own criterion (`criteria.criterion_value`) in both. Overall:
+    intent's own criterion (`criteria.criterion_value`) in both; the intent estimate's per-step
+    accuracy on that intent and role's episodes. Overall:
     the per-step intent F1 and accuracy of the assisted episodes (when the assistant infers one)."""
     base = {(r["human"], r["seed"]): r for r in unassisted}
     pairs = [(base[(r["human"], r["seed"])], r) for r in assisted if (r["human"], r["seed"]) in base]
@@ -174,6 +175,9 @@ def paired_summary(humans: Sequence[PanelHuman], unassisted: Sequence[Mapping[st
             out[f"{key}/criterion_unassisted"] = _mean([criterion_value(intent, u) for u, _ in chosen])
             out[f"{key}/criterion_assisted"] = _mean([criterion_value(intent, a) for _, a in chosen])
             out[f"{key}/intervention"] = _mean([a["intervention"] for _, a in chosen])
+            counts = intent_confusion([a for _, a in chosen], len(intents))
+            if counts.sum():  # which drivers the intent estimate gets wrong
+                out[f"{key}/intent_accuracy"] = round(float(counts[label, label] / counts.sum()), 6)
             if role == "expert":
                 total_u = float(np.sum(u_prog))
                 out[f"{key}/progress_ratio"] = round(float(np.sum(a_prog)) / total_u, 6) if total_u > 0 else None

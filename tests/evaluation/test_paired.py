@@ -61,6 +61,8 @@ def test_summary_pairs_by_spec_not_by_order():
     assert out["pass/weak/intervention"] == 0.5
     # each intent's own criterion, unassisted and assisted
     assert out["pass/weak/criterion_unassisted"] == 0.0 and out["stay/expert/criterion_assisted"] == 0.0
+    # the estimate's accuracy by intent and role: pass drivers 3 of 4 steps, stay drivers all
+    assert out["pass/weak/intent_accuracy"] == 0.75 and out["stay/expert/intent_accuracy"] == 1.0
     assert out["intent_confusion"] == [[18, 6], [0, 24]]
     assert out["intent_accuracy"] == pytest.approx(42 / 48)
 
