@@ -319,9 +319,9 @@ def test_the_same_grid_on_a_local_ray_cluster(local_run, tmp_path):
     assert ids(ra) == ids(la)
     name = "train-assistant/straightaway/pass-stay/dreamer/seed0"
     assert _files(a, la[name]["id"]) == _files(b, ra[name]["id"])  # the assistant's weights, panel, steps
-    ea, eb = (s.read_json(f"eval/straightaway/pass-stay/dreamer/seed0", "eval.json")["result"] for s in (a, b))
+    ea, eb = (s.read_json("eval/straightaway/pass-stay/dreamer/seed0", "eval.json")["result"] for s in (a, b))
     assert [h["delta"] for h in ea["humans"]] == [h["delta"] for h in eb["humans"]]
-    sa, sb = (np.load(io.BytesIO(s.read_bytes(f"eval/straightaway/pass-stay/dreamer/seed0", "steps.npz")))
+    sa, sb = (np.load(io.BytesIO(s.read_bytes("eval/straightaway/pass-stay/dreamer/seed0", "steps.npz")))
               for s in (a, b))
     assert all(np.array_equal(sa[k], sb[k]) for k in sa.files)
     assert b.resolve("report/latest") == res.json["report"]

@@ -33,7 +33,6 @@ from pydantic import Field, Strict
 
 from d2a_core.config.section import Section
 from d2a_core.sim.quiet_pybullet import pb
-from d2a_core.sim.rotation import euler_to_quaternion
 
 # Strict(False): YAML gives lists for these tuples
 Rgba = Annotated[tuple[float, float, float, float], Strict(False)]

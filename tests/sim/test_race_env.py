@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import d2a_core.sim  # noqa: F401  (registers d2a/Race-v0)
 from d2a_core.objectives import RewardConfig
 from d2a_core.sim import ENV_ID, make_vector_env
 from d2a_core.sim.episode_log import read_episode

@@ -8,7 +8,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from d2a_core.sim.world import RaceWorld, WorldConfig, euler_to_quaternion
+from d2a_core.sim.rotation import euler_to_quaternion
+from d2a_core.sim.world import RaceWorld, WorldConfig
 
 HALF_WIDTH = 5.0
 BARRIER_GAP = 1.0  # barrier face this far outside the right edge
