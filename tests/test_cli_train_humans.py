@@ -177,3 +177,19 @@ def test_same_seed_and_config_give_the_same_population_id(cli, track_store, tmp_
     a, b = first.json["populations"][0], second.json["populations"][0]
     assert not b["cached"] and a["id"] == b["id"]
     assert [c["id"] for c in a["checkpoints"]] == [c["id"] for c in b["checkpoints"]]
+
+
+def test_the_drivers_world_model_learning_rate_is_their_own(cli, track_store):
+    """`humans.model_lr` sets the drivers' world-model rate; unset, `dreamer.model_lr` does (the
+    assistant shares `dreamer` and keeps its rate)."""
+    import torch
+
+    for extra, expected in (([], 2e-4), (["--set", "humans.model_lr=5e-4"], 5e-4)):
+        res = cli("train-humans", "--intent", "pass", "--track", "straightaway", *SMOKE,
+                  "--set", "humans.env_steps=120", "--set", "humans.checkpoints=1", "--set", "dreamer.model_lr=2e-4",
+                  *extra, "--json", store=track_store)
+        assert res.code == 0, res.stderr
+        checkpoint = res.json["populations"][0]["checkpoints"][0]["id"]
+        state = torch.load(Store(track_store).path(checkpoint, "agent.pt"), weights_only=False)
+        assert state["config"]["model_lr"] == expected
+        assert [g["lr"] for g in state["optimizers"]["model"]["param_groups"]] == [expected]
