@@ -220,3 +220,8 @@ def report_error(message: str, code: int, kind: str, json_too: bool = True) -> N
 def wants_json(argv: list[str]) -> bool:
     """Whether --json is on the command line, for errors raised before options are parsed."""
     return "--json" in argv
+
+
+def before_after(before: float | None, after: float | None, digits: int = 2) -> str:
+    """`before→after` for a table cell ("-" for a value that is missing)."""
+    return "→".join("-" if v is None else f"{v:.{digits}f}" for v in (before, after))

@@ -9,6 +9,7 @@ from rich.table import Column, Table
 
 from d2a_cli.common import (
     AssistantSeedsOpt,
+    before_after,
     BaselineOpt,
     EnvsOpt,
     HumansOpt,
@@ -20,6 +21,7 @@ from d2a_cli.common import (
     print_stage,
     with_common_options,
 )
+from d2a_core.evaluation.criteria import CRITERION_METRIC
 from d2a_core.pipelines.evaluate import CRITERION, METRICS
 
 
@@ -57,7 +59,7 @@ def eval_assistants(
                 blocks = [e["intents"][intent][group] for e in shown]
                 for m in METRICS:
                     table.add_row(f"Δ {_SHORT[m]}", *(f"{b[m]['mean']:+.2f} ± {b[m]['std']:.2f}" for b in blocks))
-                table.add_row(f"{_CRITERION_NAMES[intent]}, unassisted → assisted", *(_criterion_change(b) for b in blocks))
+                table.add_row(f"{CRITERION_METRIC[intent].replace('_', ' ')}, unassisted → assisted", *(_criterion_change(b) for b in blocks))
                 table.add_row("intent F1", *("-" if e["intents"][intent]["intent_f1"] is None
                                              else f"{e['intents'][intent]['intent_f1']:.3f}" for e in shown))
                 out_console.print(table)
@@ -68,13 +70,8 @@ def eval_assistants(
 _SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate",
           "intervention": "intervention", "mean_speed_m_s": "mean speed (m/s)"}
 
-# the rate each intent's drivers are judged by (`d2a_core.evaluation.criteria`)
-_CRITERION_NAMES = {"pass": "finished ahead", "stay": "finished never ahead", "left": "held left",
-                    "right": "held right"}
-
-
 def _criterion_change(block: dict[str, Any]) -> str:
     before, change = block.get(f"{CRITERION}_unassisted"), block.get(CRITERION)
     if before is None or change is None or before["mean"] is None:
         return "-"  # an evaluation stored before the criterion was recorded
-    return f"{before['mean']:.2f}→{before['mean'] + change['mean']:.2f}"
+    return before_after(before["mean"], before["mean"] + change["mean"])

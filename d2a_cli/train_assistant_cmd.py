@@ -9,7 +9,16 @@ import typer
 from rich import box
 from rich.table import Column, Table
 
-from d2a_cli.common import ConfigFileOpt, PresetOpt, RunContext, SetOpt, TrainingBars, out_console, with_common_options
+from d2a_cli.common import (
+    ConfigFileOpt,
+    PresetOpt,
+    RunContext,
+    SetOpt,
+    TrainingBars,
+    before_after,
+    out_console,
+    with_common_options,
+)
 from d2a_core import config as config_mod
 from d2a_core.training.methods import method_names
 
@@ -78,7 +87,7 @@ def train_assistant(
 
 def _change(metrics: dict[str, Any], key: str) -> str:
     """The intent criterion unassisted → assisted (the rate a driver of that intent is judged by)."""
-    return f"{_num(metrics.get(f'{key}/criterion_unassisted'), 2)}→{_num(metrics.get(f'{key}/criterion_assisted'), 2)}"
+    return before_after(metrics.get(f"{key}/criterion_unassisted"), metrics.get(f"{key}/criterion_assisted"))
 
 
 def _num(value: float | None, digits: int = 1) -> str:

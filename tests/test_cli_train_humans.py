@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import signal
 import subprocess
 import sys
@@ -18,7 +17,7 @@ from d2a_core.training import humans as humans_mod
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import train_population
 
-from d2a_test_helpers import REPO, run_cli
+from d2a_test_helpers import REPO, copy_store, run_cli
 
 SMOKE = ("--preset", "smoke")
 
@@ -34,18 +33,14 @@ def track_template(tmp_path_factory):
 @pytest.fixture(scope="module")
 def track_store(track_template, tmp_path_factory):
     """A store with the track, shared by this module's tests (they train different intents)."""
-    store = tmp_path_factory.mktemp("humans") / "store"
-    shutil.copytree(track_template, store)
-    return store
+    return copy_store(track_template, tmp_path_factory.mktemp("humans"))
 
 
 @pytest.fixture
 def fresh_track_store(track_template, tmp_path):
     """A store with only the track: for tests that must train from nothing, whatever ran before
     them on this xdist worker."""
-    store = tmp_path / "store"
-    shutil.copytree(track_template, store)
-    return store
+    return copy_store(track_template, tmp_path)
 
 
 def test_train_humans_population_and_idempotence(cli, fresh_track_store):

@@ -33,20 +33,21 @@ FINISH_RATE = 0.8
 HOLD_SHARE = 0.7
 EXPERT_RULE = "highest mean return among checkpoints meeting the intent criterion (else highest return)"
 
-__all__ = ["EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
+__all__ = ["CRITERION_METRIC", "EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
            "performance_fractions"]
+
+
+CRITERION_METRIC = {"pass": "finished_ahead", "stay": "finished_never_ahead", "left": "held_left",
+                    "right": "held_right"}
+"""The evaluation metric each intent's criterion thresholds."""
 
 
 def criterion_value(intent: str, metrics: Mapping[str, float]) -> float:
     """The one number a seeds x intents table shows: the rate the criterion thresholds
     (for left/right the side share, which only counts together with the finish rate)."""
-    if intent == "pass":
-        return float(metrics["finished_ahead"])
-    if intent == "stay":
-        return float(metrics["finished_never_ahead"])
-    if intent in ("left", "right"):
-        return float(metrics[f"held_{intent}"])
-    raise ValueError(f"unknown intent {intent!r}")
+    if intent not in CRITERION_METRIC:
+        raise ValueError(f"unknown intent {intent!r}")
+    return float(metrics[CRITERION_METRIC[intent]])
 
 
 def meets_intent(intent: str, metrics: Mapping[str, float]) -> bool:

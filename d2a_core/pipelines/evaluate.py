@@ -44,13 +44,13 @@ from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCo
 
 EVAL_FORMAT = 1
 METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s")
+"""The paper's Table 1 metrics, per human: means over its episodes; `return` is under the human's
+own objective (r^task + r^intent)."""
 # ... and the human's own intent criterion (`evaluation.criteria.criterion_value`: finished ahead
 # for pass, finished never ahead for stay, the side share for left/right), so a table shows whether
 # assistance served the intent, not only the progress.
 CRITERION = "intent_criterion"
 SUMMARY_METRICS = (*METRICS, CRITERION)
-"""The paper's Table 1 metrics, per human: means over its episodes; `return` is under the human's
-own objective (r^task + r^intent)."""
 ENV_SECTIONS = ("env", "reward", "vehicle", "world")
 SEED_BASE = 50_000_017  # env seeds of evaluation episodes: SEED_BASE + 1000 * eval_seed + j
 

@@ -146,7 +146,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     keep_freed_memory()
     # A short run's world model must fit rare crash terminals in few updates (docs/results.md,
     # "Why left fails"); the drivers may learn faster than the assistant, which shares `dreamer`.
-    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device, "model_lr": hc.model_lr or cfg.dreamer.model_lr})
+    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device, "model_lr": hc.model_lr if hc.model_lr is not None else cfg.dreamer.model_lr})
 
     def make_env() -> RaceEnv:
         return RaceEnv(bundle.track, bundle.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
