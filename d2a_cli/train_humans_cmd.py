@@ -51,11 +51,13 @@ def train_humans(
                                 + ("" if pop["expert_meets_intent"] else " (no checkpoint meets the intent)"))
             for c in pop["checkpoints"]:
                 m = c["metrics"]
-                table.add_row(c["id"][:8], str(c["env_step"]), f"{m['return']:.0f}",
+                table.add_row(c["id"][:8], f"{c['env_step']}" + ("*" if c.get("filled") else ""), f"{m['return']:.0f}",
                               f"{m['progress_m']:.0f}", f"{m['finished']:.2f}", f"{m['finished_ahead']:.2f}",
                               f"{m['collision']:.2f}", f"{m['off_track']:.2f}", f"{c['criterion']:.2f}",
                               f"{m['mean_speed_m_s']:.1f}",
                               ("E " if c["id"] == pop["expert"] else "") + ("yes" if c["meets_intent"] else "no"))
+            if any(c.get("filled") for c in pop["checkpoints"]):
+                table.caption = "*: a snapshot added to fill the imperfect span (humans.snapshot_every)"
             out_console.print(table)
 
     run.emit({"populations": populations}, render)

@@ -13,11 +13,18 @@ class HumansConfig(Section):
 
     env_steps: int = Field(2_000_000, gt=0, description="environment steps per intent (all envs together)")
     num_envs: int = Field(4, ge=1, le=64, description="envs stepped in parallel during collection")
-    checkpoints: int = Field(10, ge=1, description="evenly spaced checkpoints; the last is the expert")
+    checkpoints: int = Field(10, ge=1, description="evenly spaced checkpoints (the expert is chosen among them)")
     eval_episodes: int = Field(10, ge=1, description="unassisted evaluation episodes per checkpoint")
     eval_envs: int = Field(4, ge=1, le=64)
     log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")
+    snapshot_every: int = Field(
+        0, ge=0, description="env steps between weight snapshots kept for filling the imperfect span (0: none)"
+    )
+    fill_imperfect: int = Field(
+        5, ge=0,
+        description="after training, snapshots are evaluated and added until this many checkpoints are below 75 % of the expert",
+    )
     model_lr: float | None = Field(
         None, gt=0,
         description="world-model learning rate of the drivers (unset: dreamer.model_lr); the assistant keeps dreamer.model_lr",

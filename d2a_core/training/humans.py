@@ -20,10 +20,12 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import shutil
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,6 +47,7 @@ from d2a_core.tracks.track import Track
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
+from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
 from d2a_core.training.run_state import cached_result, save_atomic
 
@@ -172,6 +175,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
     schedule = [round(hc.env_steps * (k + 1) / hc.checkpoints) for k in range(hc.checkpoints)]
     pending = [s for s in schedule if s > env_steps]
+    snapshots = _Snapshots(run_dir / "snapshots", hc.snapshot_every, after=env_steps)
     tags = {"track": bundle.track.name, "intent": intent}
     recent: deque[dict[str, float]] = deque(maxlen=20)
     last_metrics: dict[str, float] = {}
@@ -183,6 +187,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
             env_steps += collector.n
             for _ in range(agent.updates_due(env_steps)):
                 last_metrics = agent.train_step()
+            snapshots.maybe_save(agent, env_steps, checkpoint_now=env_steps >= pending[0])
             if env_steps >= next_log or env_steps >= pending[0]:
                 row = {"env_step": env_steps, "updates": agent.updates_done,
                        **{f"episode/{k}": v for k, v in aggregate(list(recent)).items()},
@@ -213,8 +218,10 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
         for env in envs:
             env.close()
 
-    expert_index = choose_expert(intent, checkpoints)
-    expert = checkpoints[expert_index]
+    expert = checkpoints[choose_expert(intent, checkpoints)]
+    checkpoints = _fill_imperfect(store, agent, bundle, make_env, intent, hc, config_record, seed, tags,
+                                  checkpoints, expert["id"], snapshots, key)
+    expert_index = next(k for k, c in enumerate(checkpoints) if c["id"] == expert["id"])
     for checkpoint, fraction in zip(checkpoints, performance_fractions(checkpoints, expert_index)):
         checkpoint["performance"] = fraction
     # How the run executed: the compiled CPU kernels change float rounding, not the method.
@@ -232,6 +239,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     moved = store.point_aliases(_aliases(bundle.track.name, intent, population.id, expert["id"]))
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
     state_path.unlink(missing_ok=True)
+    snapshots.discard()
     store.release_run(key)
     return dict(result, id=population.id, cached=False, aliases_moved=moved)
 
@@ -239,6 +247,64 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
 def _aliases(track: str, intent: str, population_id: str, expert_id: str) -> dict[str, str]:
     """The names a finished population is found by: the population and its expert."""
     return {f"humans/{track}/{intent}": population_id, f"humans/{track}/{intent}/expert": expert_id}
+
+
+class _Snapshots:
+    """Weight snapshots of a run, one file per env step in the run directory
+    (`training.imperfect_fill`). Those after `after` (a resumed run's step) belong to the timeline
+    the crash ended and are dropped: the resumed run takes them again."""
+
+    def __init__(self, folder: Path, every: int, after: int) -> None:
+        self.folder, self.every = folder, every
+        self.next = (after // every + 1) * every if every else None
+        for path in folder.glob("*.pt") if folder.is_dir() else ():
+            if int(path.stem) > after:
+                path.unlink()
+
+    def maybe_save(self, agent: DreamerAgent, env_steps: int, checkpoint_now: bool) -> None:
+        """Snapshot when one is due, unless a checkpoint is taken at this step anyway or the
+        agent has not been updated yet (during prefill every snapshot would be the same driver)."""
+        if self.next is None or env_steps < self.next:
+            return
+        self.next = (env_steps // self.every + 1) * self.every
+        if not checkpoint_now and agent.updates_done > 0:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            save_atomic(agent.state_dict(include_replay=False), self.folder / f"{env_steps}.pt")
+
+    def steps(self) -> list[int]:
+        return sorted(int(p.stem) for p in self.folder.glob("*.pt")) if self.folder.is_dir() else []
+
+    def load(self, env_steps: int, device: str) -> dict[str, Any]:
+        return torch.load(self.folder / f"{env_steps}.pt", map_location=device, weights_only=False)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _fill_imperfect(store: Store, agent: DreamerAgent, bundle: TrackBundle, make_env, intent: str,
+                    hc: HumansConfig, config_record: dict[str, Any], seed: int, tags: dict[str, str],
+                    checkpoints: list[dict[str, Any]], expert_id: str, snapshots: _Snapshots,
+                    key: str) -> list[dict[str, Any]]:
+    """The checkpoints with snapshots added until `hc.fill_imperfect` of them (the expert aside)
+    perform below 75 % of the expert (`training.imperfect_fill`). Runs after training: loading a
+    snapshot into `agent` no longer matters to anything but the evaluation."""
+    checkpoints = sorted(checkpoints, key=lambda c: c["env_step"])
+    taken = {c["env_step"] for c in checkpoints}
+    left = [s for s in snapshots.steps() if s not in taken]
+    while left:
+        expert = next(k for k, c in enumerate(checkpoints) if c["id"] == expert_id)
+        performance = performance_fractions(checkpoints, expert)
+        if below_near_perfect(performance, expert) >= hc.fill_imperfect:
+            break
+        step = next_snapshot([(c["env_step"], p) for c, p in zip(checkpoints, performance)], left)
+        if step is None:
+            break
+        left.remove(step)
+        agent.load_state_dict(snapshots.load(step, str(agent.device)))
+        added = _store_checkpoint(store, agent, bundle, make_env, intent, step, hc, config_record, seed, tags)
+        checkpoints = sorted([*checkpoints, dict(added, filled=True)], key=lambda c: c["env_step"])
+        store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
+    return checkpoints
 
 
 def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, make_env, intent: str,
