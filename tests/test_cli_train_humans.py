@@ -117,7 +117,8 @@ def test_a_result_of_other_training_code_is_not_reused(track_store, monkeypatch)
 
 def test_resume_after_sigkill(cli, track_store):
     args = ["train-humans", "--intent", "left", "--track", "straightaway", *SMOKE,
-            "--set", "humans.env_steps=480", "--set", "humans.checkpoints=4", "--json"]
+            "--set", "humans.env_steps=480", "--set", "humans.checkpoints=4", "--set", "humans.snapshot_every=40",
+            "--json"]
     cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(track_store)]
     # Run states of earlier tests' runs in this store do not count: wait for this run's own.
     earlier_states = set((Path(track_store) / "runs").glob("*/state.pt"))
@@ -140,9 +141,44 @@ def test_resume_after_sigkill(cli, track_store):
     assert res.code == 0, res.stderr
     pop = res.json["populations"][0]
     assert pop["resumed_from_env_step"] is not None and pop["resumed_from_env_step"] >= first.labels["env_step"]
-    assert [c["env_step"] for c in pop["checkpoints"]] == [120, 240, 360, 480]
-    assert pop["checkpoints"][0]["id"] == first.id
+    assert [c["env_step"] for c in pop["checkpoints"] if not c.get("filled")] == [120, 240, 360, 480]
+    assert next(c for c in pop["checkpoints"] if not c.get("filled"))["id"] == first.id
+    # the snapshots taken before and after the kill fill the span; their files are gone
+    assert all(c["env_step"] % 40 == 0 for c in pop["checkpoints"])
+    assert not list((Path(track_store) / "runs").glob("*/snapshots/*"))
     assert store.verify() == []
+
+
+def test_snapshots_fill_the_imperfect_span_without_changing_the_run(cli, track_store):
+    """With `humans.snapshot_every`, snapshots are evaluated after training and added until
+    `fill_imperfect` checkpoints are below 75 % of the expert; the evenly spaced checkpoints, their
+    evaluations and the expert are those of the same run without snapshots."""
+    args = ["train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE,
+            "--set", "humans.env_steps=360", "--set", "humans.checkpoints=3", "--json"]
+    plain = cli(*args, store=track_store)
+    filled = cli(*args, "--set", "humans.snapshot_every=40", store=track_store)
+    assert plain.code == 0 and filled.code == 0, plain.stderr + filled.stderr
+    a, b = plain.json["populations"][0], filled.json["populations"][0]
+    steps = [c["env_step"] for c in b["checkpoints"]]
+    assert steps == sorted(steps)
+    evenly = [c for c in b["checkpoints"] if not c.get("filled")]
+    added = [c for c in b["checkpoints"] if c.get("filled")]
+    assert [c["env_step"] for c in evenly] == [120, 240, 360]
+    assert [c["metrics"] for c in evenly] == [c["metrics"] for c in a["checkpoints"]]
+    assert b["expert_env_step"] == a["expert_env_step"] and not any(c["id"] == b["expert"] for c in added)
+    # snapshots on the 40-step grid, none before the first update (smoke prefills 64 steps)
+    assert added and all(c["env_step"] % 40 == 0 and c["env_step"] not in (120, 240, 360) for c in added)
+    assert all(c["env_step"] > 64 for c in added)
+    below = sum(1 for c in b["checkpoints"] if c["id"] != b["expert"] and c["performance"] < 0.75)
+    all_snapshots = [s for s in range(80, 360, 40) if s not in (120, 240)]
+    assert below >= 5 or len(added) == len(all_snapshots)
+    # a snapshot is a stored human like any checkpoint, and the run's snapshot files are gone
+    store = Store(track_store)
+    assert all(store.get(c["id"]).kind == "human" for c in added)
+    assert not list((Path(track_store) / "runs").glob("*/snapshots/*.pt"))
+    # fill_imperfect=0: nothing is added
+    one = cli(*args, "--set", "humans.snapshot_every=40", "--set", "humans.fill_imperfect=0", store=track_store)
+    assert one.code == 0 and not any(c.get("filled") for c in one.json["populations"][0]["checkpoints"])
 
 
 def test_non_finite_loss_stops_with_a_clear_error(cli, track_store):
