@@ -14,6 +14,8 @@ The expert. The paper takes the last checkpoint; a last checkpoint that parks or
 than an earlier one is no expert. Rule: among the checkpoints that meet the criterion, the one
 with the highest mean return under its own objective (ties: the later one); when none meets it,
 the highest-return checkpoint, and the population says `expert_meets_intent: false`.
+`train-humans` applies it to the evenly spaced checkpoints; the snapshots it adds afterwards to
+fill the imperfect span (`training.imperfect_fill`) are not candidates.
 
 Performance. A checkpoint's performance is its mean evaluation return under its own objective,
 as a fraction of the way from the population's weakest checkpoint (0) to the expert (1):

@@ -4,7 +4,9 @@ For one (track, intent) the agent trains on `r^H = r^task + r^intent` against th
 replays. At `checkpoints` evenly spaced points of the run it is evaluated unassisted and stored
 as an artifact (kind `human`): the partially trained ones are the imperfect humans. The expert is
 chosen among them by `evaluation.criteria.choose_expert` (a checkpoint that meets the intent, not
-simply the last). Then a `population` artifact lists them all with the training curve.
+simply the last). With `snapshot_every`, weight snapshots taken between checkpoints are then
+evaluated and added until the population spans enough imperfect drivers (`imperfect_fill`; they
+are never the expert). Then a `population` artifact lists them all with the training curve.
 
 Aliases: `humans/<track>/<intent>` (the population) and `humans/<track>/<intent>/expert`.
 
