@@ -177,8 +177,8 @@ def test_snapshots_fill_the_imperfect_span_without_changing_the_run(cli, track_s
     assert all(store.get(c["id"]).kind == "human" for c in added)
     assert not list((Path(track_store) / "runs").glob("*/snapshots/*.pt"))
     # fill_imperfect=0: nothing is added
-    one = cli(*args, "--set", "humans.snapshot_every=40", "--set", "humans.fill_imperfect=0", store=track_store)
-    assert one.code == 0 and not any(c.get("filled") for c in one.json["populations"][0]["checkpoints"])
+    unfilled = cli(*args, "--set", "humans.snapshot_every=40", "--set", "humans.fill_imperfect=0", store=track_store)
+    assert unfilled.code == 0 and not any(c.get("filled") for c in unfilled.json["populations"][0]["checkpoints"])
 
 
 def test_non_finite_loss_stops_with_a_clear_error(cli, track_store):
