@@ -81,6 +81,46 @@ def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistant
     assert set(notes["time_shares"]) >= {"learning", "acting/humans"}
 
 
+def test_a_partner_window_widens_only_the_assistants_observation_and_is_evaluated_with_it(
+        cli, pair_store_template, tmp_path):
+    """`assistant.partner_window=4`: the config record names the window (the default record
+    leaves it out, so runs made before the key keep their run keys), the world model reads the
+    env's observation plus 3 earlier human actions, and `d2a eval` and `d2a intent-swap` drive
+    the assistant with the same view."""
+    import torch
+
+    from d2a_core.config.section import record
+    from d2a_core.sim.race_env import RaceEnv
+    from d2a_core.tracks.sources import load_track_source
+    from d2a_core.training.config import AssistantConfig
+
+    assert "partner_window" not in record(AssistantConfig()) and "partner_window" in AssistantConfig().model_dump()
+    store_path = copy_store(pair_store_template, tmp_path)
+    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.partner_window=4",
+              "--set", "assistant.checkpoints=1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+    store = Store(store_path)
+    art = store.get(res.json["assistants"][0]["id"])
+    assert art.config["assistant"]["partner_window"] == 4
+    weights = dict(_flat(torch.load(store.path(art.id, "agent.pt"), weights_only=False)))
+    env_width = RaceEnv(load_track_source("straightaway").track).observation_space.shape[0]
+    assert weights["world_model.encoder.hidden.0.linear.weight"].shape[1] == env_width + 6
+    res = cli("eval", *PAIR, "--episodes", "1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+    assert res.json["evaluations"][0]["assistant"] == art.id
+    res = cli("intent-swap", *PAIR, "--trials", "1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+
+
+def _flat(state, prefix=""):
+    """(dotted name, tensor) of every tensor in a nested state dict."""
+    for key, value in state.items():
+        if isinstance(value, dict):
+            yield from _flat(value, f"{prefix}{key}.")
+        elif hasattr(value, "shape"):
+            yield f"{prefix}{key}", value
+
+
 def test_resume_after_sigkill(cli, pair_store):
     args = ["train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--seed", "1",
             "--set", "assistant.env_steps=480", "--set", "assistant.checkpoints=4", "--json"]

@@ -12,7 +12,7 @@ from d2a_core.agents.dreamer.expert import ExpertPrediction
 from d2a_core.agents.dreamer.latent import Latent
 from d2a_core.agents.protocol import AssistantAgent
 from d2a_core.objectives.assistant import AssistantRewardConfig, combine
-from d2a_core.sim.race_env import RaceEnv
+from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.tracks.sources import load_track_source
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 
@@ -240,3 +240,39 @@ def test_an_intent_swap_replaces_the_human_at_the_drawn_step(track):
     accuracy = np.mean(np.array(rows[0]["steps_log"]["y_hat"]) == np.array(labels))
     assert rows[0]["intent_accuracy"] == pytest.approx(accuracy)
     assert "intent_counts" not in rows[0]  # one label per episode no longer holds
+
+
+class RampHuman(ScriptedHuman):
+    """Accelerates by 0.01 more on every step of its episode, so each action names its step."""
+
+    def policy(self, obs_batch, state, explore=True, generator=None):
+        _, state = super().policy(obs_batch, state, explore, generator)
+        acts = np.concatenate([np.zeros_like(state.latent.h.numpy()), state.latent.h.numpy() / 100], 1)
+        return acts.astype(np.float32), PolicyState(state.latent, torch.as_tensor(acts))
+
+
+def test_a_partner_window_shows_the_humans_earlier_actions_newest_first(track):
+    """Window 4: after the env's observation (partner slot = the human's last action, 0.01 * t at
+    step t + 1) come the 3 actions before it, zeros before the episode's start, again from zero in
+    the next episode; window 1 is the env's observation itself."""
+    views = {}
+    for window in (1, 4):
+        assistant = ScriptedAssistant([0.0, 0.0])
+        env = RaceEnv(track, env_config=EnvConfig(time_limit_s=1.0))
+        collector = SharedCollector([env], HumanDrivers([RampHuman([0, 0])], 1, False, 0), PAIR, specs(2),
+                                    assistant=assistant, reward_config=AssistantRewardConfig(alpha_r=0.0),
+                                    partner_window=window)
+        run(collector)
+        views[window] = np.stack([i["obs"][0] for i in assistant.inputs])
+        firsts = np.flatnonzero(np.stack([i["is_first"][0] for i in assistant.inputs]))
+    base, wide = views[1], views[4]
+    assert wide.shape[1] == base.shape[1] + 6
+    np.testing.assert_array_equal(wide[:, :base.shape[1]], base)
+    assert len(firsts) == 2
+    for start in firsts:
+        for t in range(8):
+            row = wide[start + t]
+            assert row[base.shape[1] - 1] == pytest.approx(0.01 * t)  # the slot: a_H at step t - 1
+            expected = [0.01 * (t - k) if t - k > 0 else 0.0 for k in (1, 2, 3)]
+            np.testing.assert_allclose(row[base.shape[1]:].reshape(3, 2)[:, 1], expected, atol=1e-6)
+            np.testing.assert_array_equal(row[base.shape[1]:].reshape(3, 2)[:, 0], 0.0)

@@ -17,6 +17,7 @@ from typing import Any, Iterable
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from d2a_core.config.section import record
 from d2a_core.errors import ConfigError
 
 PRESET_DIR = Path(__file__).parent / "presets"
@@ -66,11 +67,16 @@ class ResolvedConfig:
     sources: dict[str, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
+        """Every key with its value (for display)."""
         return self.config.model_dump(mode="json")
 
+    def record(self) -> dict[str, Any]:
+        """The config as recorded in run keys and manifests (`config.section.record`)."""
+        return record(self.config)
+
     def section(self, *names: str) -> dict[str, Any]:
-        """The named top-level sections only: what an artifact actually depends on."""
-        full = self.as_dict()
+        """The named top-level sections of the record only: what an artifact actually depends on."""
+        full = self.record()
         return {name: full[name] for name in names}
 
 

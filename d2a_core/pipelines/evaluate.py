@@ -146,8 +146,10 @@ def panel_specs(humans: Sequence[TestHuman], episodes: int, eval_seed: int) -> l
 
 def run_specs(specs: Sequence[EpisodeSpec], human_agents: Sequence[Any], intents: Sequence[str], make_env,
               n_envs: int, log_dir: Path, assistant=None, log_metadata: dict[str, Any] | None = None,
-              record_features: Callable[[EpisodeSpec], bool] | None = None) -> tuple[list[dict], list[dict]]:
-    """Drive every spec (humans act with their mode; the assistant, if any, with its mode).
+              record_features: Callable[[EpisodeSpec], bool] | None = None,
+              partner_window: int = 1) -> tuple[list[dict], list[dict]]:
+    """Drive every spec (humans act with their mode; the assistant, if any, with its mode, seeing
+    `partner_window` of the human's last actions).
     Returns the rows in spec order and, when assisted, their per-step logs. Each episode's MCAP
     log goes to `log_dir` (its path in the row's `log`)."""
     queue = iter(specs)
@@ -158,7 +160,8 @@ def run_specs(specs: Sequence[EpisodeSpec], human_agents: Sequence[Any], intents
         collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
                                     reward_config=AssistantRewardConfig(alpha_r=0.0, alpha_a=0.0),
                                     keep_steps=assistant is not None, label_field=None, log_dir=log_dir,
-                                    log_metadata=log_metadata, record_features=record_features)
+                                    log_metadata=log_metadata, record_features=record_features,
+                                    partner_window=partner_window)
         try:
             rows: list[dict] = []
             while not collector.idle:
@@ -237,7 +240,8 @@ class _Session:
         return RaceEnv(self.bundle.track, self.bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
                        vehicle_config=cfg.vehicle, world_config=cfg.world)
 
-    def run(self, name: str, assistant=None, metadata: dict[str, Any] | None = None) -> tuple[list[dict], list[dict]]:
+    def run(self, name: str, assistant=None, metadata: dict[str, Any] | None = None,
+            partner_window: int = 1) -> tuple[list[dict], list[dict]]:
         if self._agents is None:
             self._agents = {hid: load_human(self.store, hid, self.obs_space, self.act_space, self.device)
                             for hid in dict.fromkeys(self.human_ids)}
@@ -245,6 +249,7 @@ class _Session:
         first_seed = specs[0].seed  # latent states of each human's first episode, for the report's t-SNE
         return run_specs(specs, [self._agents[h.id] for h in self.humans], self.intents, self.make_env, self.n_envs,
                          self.log_root / name, assistant, {"track": self.track, **(metadata or {})},
+                         partner_window=partner_window,
                          record_features=lambda spec: spec.seed == first_seed)
 
     def unassisted(self) -> list[dict]:
@@ -268,11 +273,12 @@ class _Session:
         if done:
             return dict(store.read_json(done[-1].id, "eval.json")["result"], id=done[-1].id, cached=True)
         unassisted = self.unassisted()
-        assistant, _, trained_on = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
+        assistant, _, trained_on, window = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
         if tuple(trained_on) != tuple(self.intents):
             raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(trained_on)}, not {self.pair}")
         assisted, step_logs = self.run(f"{name}-seed{seed}", assistant, {
-            "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id})
+            "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id},
+            partner_window=window)
         latents = _latents_npz(assisted)
         # held out: humans of populations the assistant was not trained with (its inputs say which)
         held_out = not set(self.population_ids) <= set(store.get(art_id).inputs)

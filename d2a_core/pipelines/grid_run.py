@@ -108,7 +108,7 @@ def config_fingerprint(preset: str, config_file: str | None, overrides: tuple[st
         resolved = config_mod.load(preset, Path(config_file) if config_file else None, list(overrides))
     except D2AError as exc:
         return f"invalid: {exc}"
-    return hashlib.sha256(canonical_json(resolved.as_dict())).hexdigest()
+    return hashlib.sha256(canonical_json(resolved.record())).hexdigest()
 
 
 def read_done(store, key: str) -> dict[str, Any] | None:

@@ -210,12 +210,13 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
                 agents = [loaded.get(i) for i in range(len(human_ids))]
                 unassisted, _ = run_specs(specs, agents, intents, make_env, n_envs, logs_root / "unassisted", None,
                                           {"condition": "unassisted", "track": track, "experiment": "intent-swap"})
-            assistant, _, trained_on = load_assistant(store, art_id, obs_space, act_space, device)
+            assistant, _, trained_on, partner_window = load_assistant(store, art_id, obs_space, act_space, device)
             if tuple(trained_on) != tuple(intents):
                 raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(trained_on)}, not {pair}")
             assisted, step_logs = run_specs(specs, agents, intents, make_env, n_envs, logs_root / f"{name}-{seed}",
                                             assistant, {"condition": "assisted", "method": name, "assistant": art_id,
-                                                        "track": track, "experiment": "intent-swap"})
+                                                        "track": track, "experiment": "intent-swap"},
+                                            partner_window=partner_window)
             result = {"method": name, "seed": seed, "assistant": art_id, "track": track, "pair": pair,
                       "trials_per_direction": trials, "window_s": list(window_s), "eval_seed": eval_seed,
                       "dt": dt, "recovery_level": RECOVERY_LEVEL, "hold_s": HOLD_S,

@@ -37,6 +37,7 @@ from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.artifacts import Store, canonical_json
 from d2a_core.config import ResolvedConfig
+from d2a_core.config.section import record
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
@@ -46,6 +47,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
+from d2a_core.training.partner_window import assistant_observation_space
 from d2a_core.training.run_state import cached_result, save_atomic
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 
@@ -133,7 +135,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     populations = load_populations(store, bundle, intents, humans_refs)
     population_ids = [pid for pid, _ in populations]
     # the sections the method depends on, as patched by the method (intent head, reward weights)
-    config_record = {name: getattr(cfg, name).model_dump(mode="json") for name in method.config_sections}
+    config_record = {name: record(getattr(cfg, name)) for name in method.config_sections}
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
     cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
     if cached:
@@ -158,7 +160,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     expert_agents = [by_id[pop["expert"]] for _, pop in populations]
     the_panel = panel([pop for _, pop in populations], intents, ac.panel_weakest)
 
-    agent = method.build_agent(cfg, obs_space, act_space, intents, seed, device)
+    agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window), act_space, intents,
+                               seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
     run_dir = store.run_dir(key)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -194,7 +197,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
                for k, e in enumerate(expert_agents)] if method.uses_experts else None
     label_field = INTENT_HEAD_NAME if method.intent_head else None
     collector = SharedCollector(envs, drivers, intents, draw, assistant=agent, experts=experts,
-                                reward_config=ac.reward, label_field=label_field)
+                                reward_config=ac.reward, label_field=label_field, partner_window=ac.partner_window)
 
     def evaluate_panel(assistant, steps: bool = False) -> list[dict[str, Any]]:
         return _run_panel(the_panel, by_id, intents, make_env, ac, seed, assistant, expert_agents,
@@ -283,8 +286,9 @@ def _aliases(track: str, pair: str, method: str, seed: int, final_id: str, run_i
 
 
 def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "cpu"):
-    """A stored assistant checkpoint as a ready-to-act agent, with its method and pair:
-    (agent, method, intents). Its learner's config comes from the artifact's recorded config."""
+    """A stored assistant checkpoint as a ready-to-act agent, with its method, pair and partner
+    window: (agent, method, intents, partner_window). `obs_space` is the env's; the learner's
+    config and the window come from the artifact's recorded config."""
     from d2a_core.config.schema import Config  # the section classes, to validate the recorded one
 
     art = store.get(ref)
@@ -294,10 +298,11 @@ def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "
     intents = parse_pair(art.labels["pair"])
     section_type = type(getattr(Config(), method.agent_section))
     section = section_type.model_validate(art.config[method.agent_section])
-    agent = method.builder()(section, obs_space, act_space, intents, 0, device)
+    window = int(art.config.get("assistant", {}).get("partner_window", 1))
+    agent = method.builder()(section, assistant_observation_space(obs_space, window), act_space, intents, 0, device)
     state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
     agent.load_state_dict(state)
-    return agent, method, intents
+    return agent, method, intents, window
 
 
 def _episode_stats(episodes: list[dict[str, Any]], classes: int) -> dict[str, Any]:
@@ -334,7 +339,7 @@ def _run_panel(the_panel: Sequence[PanelHuman], by_id: dict[str, Any], intents: 
     try:
         collector = SharedCollector(envs, drivers, intents, lambda: next(queue, None), assistant=assistant,
                                     experts=experts, reward_config=cfg.assistant.reward, keep_steps=steps,
-                                    label_field=None)
+                                    label_field=None, partner_window=ac.partner_window)
         rows: list[dict[str, Any]] = []
         while not collector.idle:
             rows.extend(collector.step(explore=False, learn=False))

@@ -48,3 +48,9 @@ class AssistantConfig(Section):
     eval_envs: int = Field(8, ge=1, le=64)
     log_every: int = Field(5000, gt=0, description="environment steps between training-curve rows")
     torch_threads: int = Field(0, ge=0, description="torch CPU threads (0: all cores)")
+    partner_window: int = Field(
+        1, ge=1, le=64,
+        description="the human's last K actions in the assistant's observation (1: the partner slot alone, the paper's)",
+    )
+
+    omit_at_default = {"partner_window": 1}

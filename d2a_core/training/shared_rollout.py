@@ -7,7 +7,8 @@ humans live here, outside the env (`SharedControl` is the single-env form, for r
 
 What each party sees:
 
-- the assistant: the env's observation, whose partner slot holds the human's last action, and
+- the assistant: the env's observation, whose partner slot holds the human's last action (with
+  `partner_window` K > 1, followed by the K - 1 human actions before it: `PartnerWindow`), and
   (as a training target only, never an input) the index of the human's intent in the pair;
 - a human: the same observation with the assistant's last action in the partner slot; its
   recurrent state continues with the *executed* (blended) action, so its world model tracks
@@ -45,6 +46,7 @@ from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_rewar
 from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.sim.recording import scene_of, step_record
+from d2a_core.training.partner_window import PARTNER_SLOT, PartnerWindow
 
 ASSISTANT_TERMS = ("task", "intervention", "expert_reward", "expert_distance", "total")
 """The assistant reward's terms, unweighted (`AssistantRewardTerms`), summed per episode as
@@ -131,7 +133,9 @@ class SharedCollector:
 
     `intents`: the pair, in label order. `experts`: one filter per intent of the pair (or None
     when the method's reward queries no expert). `assistant`: None drives unassisted (a_A = 0).
-    `keep_steps`: keep per-step arrays of each episode (terms, actions, intent estimates)."""
+    `keep_steps`: keep per-step arrays of each episode (terms, actions, intent estimates).
+    `partner_window`: how many of the human's last actions the assistant observes (its config's
+    `assistant.partner_window`)."""
 
     def __init__(self, envs: Sequence[RaceEnv], humans: HumanDrivers, intents: Sequence[str],
                  next_episode: Callable[[], EpisodeSpec | None], assistant: AssistantAgent | None = None,
@@ -139,9 +143,11 @@ class SharedCollector:
                  reward_config: AssistantRewardConfig | None = None, keep_steps: bool = False,
                  label_field: str | None = "intent", log_dir: Path | None = None,
                  log_metadata: dict[str, Any] | None = None,
-                 record_features: Callable[[EpisodeSpec], bool] | None = None) -> None:
+                 record_features: Callable[[EpisodeSpec], bool] | None = None,
+                 partner_window: int = 1) -> None:
         self.envs = list(envs)
         self.n = len(self.envs)
+        self._window = PartnerWindow(self.n, partner_window)
         self.humans = humans
         self.intents = tuple(intents)
         self.next_episode = next_episode
@@ -198,6 +204,7 @@ class SharedCollector:
         if spec.replay is not None:
             options["replay"] = spec.replay
         obs, info = self.envs[i].reset(seed=spec.seed, options=options)
+        self._window.reset(i)
         self._obs[i] = obs
         self._human_obs[i] = obs
         self._labels[i] = spec.label
@@ -226,7 +233,7 @@ class SharedCollector:
         ended on this call: their spec, metrics and the sums of the assistant's reward terms."""
         clock = time.perf_counter()
         active = ~self._idle
-        record = {"obs": self._obs.copy(), "reward": self._reward.copy(), "is_first": self._first.copy(),
+        record = {"obs": self._window.view(self._obs).copy(), "reward": self._reward.copy(), "is_first": self._first.copy(),
                   "is_terminal": self._terminal.copy()}
         y_hat = probs = None
         if self.assistant is not None:
@@ -281,6 +288,7 @@ class SharedCollector:
                 ep["human_action"].append(a_human[i].tolist())
                 ep["assistant_action"].append(a_assist[i].tolist())
             task[i] = info["reward_terms"]["task"]
+            self._window.push(i, self._obs[i, -PARTNER_SLOT:])  # the slot's action moves into the window
             self._obs[i] = obs
             self._human_obs[i] = obs
             self._human_obs[i, -2:] = a_assist[i]  # ...and the human's shows a_A

@@ -1,0 +1,88 @@
+"""How much of the intent the human's own actions carry: docs/results.md, "how much of the
+intent the human's actions carry" (issue 13).
+
+From the assisted episodes of a `d2a eval` artifact or of an assistant checkpoint's panel (their
+`steps.npz`: the human's action at every step), a gradient-boosted classifier (scikit-learn)
+predicts the episode's intent at every step from features of the human's actions up to that
+step, and is scored by per-step macro F1 under 5-fold cross-validation grouped two ways:
+by episode (other episodes of the same humans: the training humans' case) and by human (humans
+it never saw: the held-out case). The assistant's own estimate (`y_hat`) on the same steps is
+printed beside it, and, for the richest features, each human's accuracy when left out.
+
+    python docs/analysis/intent_from_human_actions.py STORE ARTIFACT_ID
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+from sklearn.ensemble import HistGradientBoostingClassifier
+from sklearn.metrics import f1_score
+from sklearn.model_selection import GroupKFold
+
+from d2a_core.artifacts import Store
+
+WINDOW = 16  # the No-RSSM baseline's window (paper appendix): about 1.5 s
+
+
+def features(actions: np.ndarray) -> dict[str, np.ndarray]:
+    """Feature sets per step of one episode (T, 2) of human actions, each using steps <= t only."""
+    n = len(actions)
+    padded = np.vstack([np.zeros((WINDOW - 1, 2), np.float32), actions])
+    window = np.stack([padded[t:t + WINDOW].ravel() for t in range(n)])
+    mean_so_far = np.cumsum(actions, 0) / np.arange(1, n + 1)[:, None]
+    min_so_far = np.minimum.accumulate(actions, 0)
+    step = np.arange(n, dtype=np.float32)[:, None]
+    return {"the current action": actions,
+            f"the last {WINDOW} actions": window,
+            f"the last {WINDOW} actions + episode mean, min, step": np.hstack([window, mean_so_far, min_so_far, step])}
+
+
+def main(store_path: str, ref: str) -> None:
+    store = Store(store_path)
+    art = store.get(ref)
+    steps = np.load(store.path(art.id, "steps.npz"))
+    result = json.loads(store.path(art.id, "eval.json").read_text())
+    rows = result["assisted"]
+    humans = result["result"]["humans"] if "result" in result else result["panel"]
+    sets: dict[str, list[np.ndarray]] = {}
+    labels, by_episode, by_human, y_hat = [], [], [], []
+    for i, row in enumerate(rows):
+        mask = steps["episode"] == i
+        if not mask.any():
+            continue
+        for name, x in features(steps["human_action"][mask]).items():
+            sets.setdefault(name, []).append(x)
+        n = int(mask.sum())
+        labels.append(np.full(n, row["label"]))
+        by_episode.append(np.full(n, i))
+        by_human.append(np.full(n, row["human"]))
+        y_hat.append(steps["y_hat"][mask])
+    y = np.concatenate(labels)
+    groups = {"other episodes of the same humans": np.concatenate(by_episode),
+              "humans it never saw": np.concatenate(by_human)}
+    print(f"{art.kind} {art.id[:12]}: {len(rows)} assisted episodes, {len(y)} steps")
+    print(f"the assistant's own estimate: per-step F1 {f1_score(y, np.concatenate(y_hat), average='macro'):.3f}")
+    print("| features of the human's actions | F1, " + " | F1, ".join(groups) + " |")
+    print("|---|" + "---|" * len(groups))
+    left_out = {}
+    for name, parts in sets.items():
+        x = np.vstack(parts)
+        scores = []
+        for group_name, group in groups.items():
+            predicted = np.zeros_like(y)
+            for train, test in GroupKFold(5).split(x, y, group):
+                model = HistGradientBoostingClassifier(max_iter=200, random_state=0).fit(x[train], y[train])
+                predicted[test] = model.predict(x[test])
+            scores.append(f1_score(y, predicted, average="macro"))
+            if group_name == "humans it never saw":
+                left_out = {h: float((predicted[group == h] == y[group == h]).mean()) for h in np.unique(group)}
+        print(f"| {name} | " + " | ".join(f"{s:.3f}" for s in scores) + " |")
+    print("each human left out (richest features): " + ", ".join(
+        f"{humans[h]['intent']} {humans[h]['env_step'] / 1000:g}k {acc:.2f}" for h, acc in left_out.items()))
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:3])
