@@ -181,6 +181,35 @@ def test_snapshots_fill_the_imperfect_span_without_changing_the_run(cli, track_s
     assert unfilled.code == 0 and not any(c.get("filled") for c in unfilled.json["populations"][0]["checkpoints"])
 
 
+def test_evaluation_episode_logs_show_each_checkpoint_without_changing_it(cli, track_store, tmp_path):
+    """`humans.eval_logs=2`: each checkpoint keeps its first two evaluation episodes as MCAP logs
+    (`episodes/*.mcap`, exported by `d2a artifacts export`, their outcome in the metadata); the
+    evaluations and expert are those of the same run without logs."""
+    from d2a_core.sim.episode_log_reader import read_episode
+
+    args = ["train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE,
+            "--set", "humans.env_steps=360", "--set", "humans.checkpoints=3", "--json"]
+    plain = cli(*args, store=track_store)
+    logged = cli(*args, "--set", "humans.eval_logs=2", store=track_store)
+    assert plain.code == 0 and logged.code == 0, plain.stderr + logged.stderr
+    a, b = plain.json["populations"][0], logged.json["populations"][0]
+    assert [c["metrics"] for c in b["checkpoints"]] == [c["metrics"] for c in a["checkpoints"]]
+    assert b["expert_env_step"] == a["expert_env_step"]
+    store = Store(track_store)
+    assert "eval_logs" not in store.get(a["checkpoints"][0]["id"]).config["humans"]  # older run keys hold
+    for checkpoint in b["checkpoints"]:
+        out = tmp_path / checkpoint["id"][:12]
+        assert cli("artifacts", "export", checkpoint["id"], str(out), store=track_store).code == 0
+        logs = sorted((out / "episodes").glob("*.mcap"))
+        assert len(logs) == 2
+        episodes = store.read_json(checkpoint["id"], "eval.json")["episodes"]
+        for log in logs:
+            episode = read_episode(log)
+            outcome = episode.metadata["outcome"]
+            assert episode.metadata["intent"] == "stay" and len(episode) > 1
+            assert any(outcome["progress_m"] == pytest.approx(e["progress_m"]) for e in episodes)
+
+
 def test_non_finite_loss_stops_with_a_clear_error(cli, track_store):
     res = cli("train-humans", "--intent", "right", "--track", "straightaway", *SMOKE,
               "--set", "dreamer.model_lr=1e30", "--set", "dreamer.actor_lr=1e30", "--json", store=track_store)

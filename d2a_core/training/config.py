@@ -29,6 +29,12 @@ class HumansConfig(Section):
         None, gt=0,
         description="world-model learning rate of the drivers (unset: dreamer.model_lr); the assistant keeps dreamer.model_lr",
     )
+    eval_logs: int = Field(
+        0, ge=0,
+        description="evaluation episodes of each checkpoint kept as MCAP episode logs (episodes/*.mcap), to see where it fails",
+    )
+
+    omit_at_default = {"eval_logs": 0}
 
 
 class AssistantConfig(Section):

@@ -23,6 +23,7 @@ import hashlib
 import io
 import json
 import shutil
+import tempfile
 import time
 from collections import deque
 from collections.abc import Callable
@@ -312,12 +313,16 @@ def _fill_imperfect(store: Store, agent: DreamerAgent, bundle: TrackBundle, make
 def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, make_env, intent: str,
                       env_steps: int, hc: HumansConfig, config_record: dict[str, Any], seed: int,
                       tags: dict[str, str]) -> dict[str, Any]:
-    episodes = evaluate(agent, make_env, hc.eval_episodes, seed=10_000_019 + seed, n_envs=hc.eval_envs)
-    metrics = aggregate(episodes)
-    fraction = round(env_steps / hc.env_steps, 6)
-    with store.create("human", inputs=[bundle.track_id, *bundle.replay_ids], config=config_record, seed=seed,
-                      labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
-        writer.add_bytes("agent.pt", _agent_bytes(agent))
-        writer.add_json("eval.json", {"metrics": metrics, "episodes": episodes})
+    with tempfile.TemporaryDirectory(prefix="d2a-eval-logs-") as logs:
+        episodes = evaluate(agent, make_env, hc.eval_episodes, seed=10_000_019 + seed, n_envs=hc.eval_envs,
+                            log_dir=Path(logs), log_episodes=hc.eval_logs)
+        metrics = aggregate(episodes)
+        fraction = round(env_steps / hc.env_steps, 6)
+        with store.create("human", inputs=[bundle.track_id, *bundle.replay_ids], config=config_record, seed=seed,
+                          labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
+            writer.add_bytes("agent.pt", _agent_bytes(agent))
+            writer.add_json("eval.json", {"metrics": metrics, "episodes": episodes})
+            for log in sorted(Path(logs).glob("*.mcap")):  # where the checkpoint fails, for Foxglove
+                writer.add_file(f"episodes/{log.name}", log)
     return {"id": writer.artifact.id, "env_step": env_steps, "fraction": fraction, "metrics": metrics,
             "meets_intent": meets_intent(intent, metrics), "criterion": criterion_value(intent, metrics)}

@@ -13,25 +13,35 @@ next record is the reset observation with `is_first = True`.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from d2a_core.agents.dreamer.agent import DreamerAgent, PolicyState
 from d2a_core.evaluation.metrics import episode_metrics
+from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
+from d2a_core.sim.recording import scene_of, step_record
 
 
 class Collector:
     """Steps `envs` with `agent.policy` and (when learning) feeds every record to `agent.observe`.
 
-    Resets use seeds `seed, seed + 1, ...`, so a run is reproducible."""
+    Resets use seeds `seed, seed + 1, ...`, so a run is reproducible. With `log_dir`, the first
+    `log_episodes` episodes started are written as MCAP episode logs `episode-<seed>.mcap` there
+    (a log is complete once its episode ended; `close` removes the unfinished ones)."""
 
-    def __init__(self, envs: Sequence[RaceEnv], agent: DreamerAgent, seed: int):
+    def __init__(self, envs: Sequence[RaceEnv], agent: DreamerAgent, seed: int,
+                 log_dir: Path | None = None, log_episodes: int = 0):
         self.envs = list(envs)
         self.agent = agent
         self.n = len(self.envs)
         self._next_seed = seed
+        self._log_dir = None if log_dir is None else Path(log_dir)
+        self._logs_left = log_episodes if log_dir is not None else 0
+        self._recorders: list[EpisodeRecorder | None] = [None] * self.n
+        self._scene = scene_of(self.envs[0].track) if self._logs_left else None
         self._state: PolicyState | None = None
         obs_size = self.envs[0].observation_space.shape[0]
         self._obs = np.zeros((self.n, obs_size), np.float32)
@@ -46,6 +56,9 @@ class Collector:
 
     def _reset(self, i: int) -> None:
         obs, info = self.envs[i].reset(seed=self._next_seed)
+        if self._logs_left > 0:
+            self._logs_left -= 1
+            self._open_log(i, self._next_seed, info)
         self._next_seed += 1
         self._obs[i] = obs
         self._reward[i] = 0.0
@@ -69,6 +82,10 @@ class Collector:
                 self._reset(i)
                 continue
             obs, reward, terminated, truncated, info = env.step(actions[i])
+            recorder = self._recorders[i]
+            if recorder is not None:
+                cars, states = step_record(env, info, reward)
+                recorder.log_step(info["t"], cars, states)
             self._infos[i].append(info)
             self._rewards[i].append(float(reward))
             self._obs[i] = obs
@@ -78,22 +95,50 @@ class Collector:
             if terminated or truncated:
                 self._done[i] = True
                 finished.append(episode_metrics(self._infos[i], self._rewards[i]))
+                if recorder is not None:
+                    recorder.update_metadata({"outcome": {k: finished[-1][k] for k in
+                                                          ("progress_m", "finished", "collision", "off_track", "return")}})
+                    recorder.close()
+                    self._recorders[i] = None
         return finished
+
+    def close(self) -> None:
+        """Remove the episode logs whose episodes had not ended."""
+        for i, recorder in enumerate(self._recorders):
+            if recorder is not None:
+                recorder.abort()
+                self._recorders[i] = None
+
+    def _open_log(self, i: int, seed: int, info: dict[str, Any]) -> None:
+        assert self._log_dir is not None and self._scene is not None
+        self._log_dir.mkdir(parents=True, exist_ok=True)
+        env = self.envs[i]
+        meta = {"track": env.track.name, "intent": env.intent, "replay": info["replay"], "seed": seed}
+        recorder = EpisodeRecorder(self._log_dir / f"episode-{seed}.mcap", self._scene, meta, env.cfg.dt)
+        recorder.open()
+        cars, states = step_record(env, info, 0.0)
+        recorder.log_step(info["t"], cars, states)
+        self._recorders[i] = recorder
 
 
 def evaluate(agent: DreamerAgent, make_env: Callable[[], RaceEnv], episodes: int, seed: int,
-             n_envs: int = 4) -> list[dict[str, float]]:
+             n_envs: int = 4, log_dir: Path | None = None, log_episodes: int = 0) -> list[dict[str, float]]:
     """`episodes` episodes with the actor's mode (no exploration); nothing is added to replay.
 
     Episodes are taken in the order they end; with several envs the extra episodes still running
-    at the end are dropped, which keeps the set fixed for a given seed."""
+    at the end are dropped, which keeps the set fixed for a given seed. The first `log_episodes`
+    (by seed) are also written to `log_dir` as MCAP episode logs (see `Collector`); logging
+    changes no metric."""
     envs = [make_env() for _ in range(max(1, min(n_envs, episodes)))]
+    collector = None
     try:
-        collector = Collector(envs, agent, seed)
+        collector = Collector(envs, agent, seed, log_dir=log_dir, log_episodes=min(log_episodes, episodes))
         results: list[dict[str, float]] = []
         while len(results) < episodes:
             results.extend(collector.step(explore=False, learn=False))
         return results[:episodes]
     finally:
+        if collector is not None:
+            collector.close()
         for env in envs:
             env.close()
