@@ -27,6 +27,14 @@ Termination: collision with the opponent or a barrier (pybullet contacts), more 
 has at most one outcome, in this order: collision, off track, finish (a car that crosses the line
 while crashing or leaving the road has not finished, and is paid only the crash).
 `info` carries every reward term and the quantities metrics need, so evaluation never re-simulates.
+
+Reset options: `replay` (index), `intent`, `ego_s`/`ego_e`/`start_speed` (a custom start), and
+`start_step` or `start_spread` for a start further along the race: the episode begins as if
+`start_step` control steps had passed (`start_spread` f draws it uniformly from the first f of
+the opponent's recorded race, from the env's seeded generator): the opponent at that point of
+its replay, the ego the grid's distance behind it at the grid's lateral offset and the
+opponent's speed, the time limit as it would stand. Training may spread starts this way so the
+world model sees the far corners of a long track; evaluation starts from the grid.
 """
 
 from __future__ import annotations
@@ -141,6 +149,7 @@ class RaceEnv(gym.Env):
         self._partner_list = [0.0, 0.0]
         self._replay: OpponentReplay | None = None
         self._replay_index = -1
+        self._teleport = True  # the next placement is a reset's: cars jump, no contact sweep
 
     # --------------------------------------------------------------------------------- API
     def set_partner_action(self, action: np.ndarray | None) -> None:
@@ -163,17 +172,25 @@ class RaceEnv(gym.Env):
                 raise ValueError(f"intent must be one of {INTENTS} or None, got {intent!r}")
             self.intent = intent
         grid = self.track.start_grid.ego
+        start_step = self._start_step(options)
         s0, e0 = float(options.get("ego_s", grid.s)), float(options.get("ego_e", grid.e))
+        speed = float(options.get("start_speed", self.cfg.start_speed_m_s))
+        if start_step:
+            _, _, _, _, opp_speed, opp_s, _ = self._replay.at(start_step)
+            s0 = opp_s - (self.track.start_grid.opponent.s - grid.s)
+            speed = opp_speed
         x, y, _ = self.track.from_frenet(s0, e0)
         yaw = self.track.heading_at(s0)
-        self.vehicle.reset(x, y, yaw, float(options.get("start_speed", self.cfg.start_speed_m_s)))
-        self._step = 0
+        self.vehicle.reset(x, y, yaw, speed)
+        self._step = start_step
+        self._teleport = True
         self._s = s0
         self._e = e0
         self._s_start = s0
         self._partner_list = [0.0, 0.0]
         self._applied = (0.0, 0.0)
         self._place_cars()
+        self._teleport = False
         self._ds = self._s - self._opp_s
         at_limit = self._replay.at(self._max_steps)
         self._opp_s_at_limit = self._replay.s_after_end(self._max_steps, self.cfg.dt) if at_limit is None else at_limit[5]
@@ -227,12 +244,28 @@ class RaceEnv(gym.Env):
         """Road slope along the car's heading (the track grade projected on the heading)."""
         return self.track.grade_at(self._s) * math.cos(_wrap(yaw - self.track.heading_at(self._s)))
 
+    def _start_step(self, options: dict[str, Any]) -> int:
+        """The control step the episode starts at (0: the grid); see the module docstring."""
+        racing_steps = len(self._replay) - 1  # the last step at which the opponent is still racing
+        horizon = min(racing_steps, self._max_steps - 1)
+        if "start_step" in options:
+            step = int(options["start_step"])
+            if not 0 <= step <= horizon:
+                raise ValueError(f"start_step must be in [0, {horizon}] (the opponent races and time is left), got {step}")
+            return step
+        spread = float(options.get("start_spread", 0.0))
+        if not 0.0 <= spread <= 1.0:
+            raise ValueError(f"start_spread must be in [0, 1], got {spread}")
+        if spread == 0.0:
+            return 0  # no draw: the generator's stream is that of a grid start
+        return int(self.np_random.integers(0, int(spread * horizon) + 1))
+
     def _place_cars(self) -> None:
         st = self.vehicle.state
         # the world takes the road height under the car and adds clearance and half the body height
         pitch = -math.atan(self.track.grade_at(self._s))
         self.world.set_car_pose(0, st.x, st.y, self.track.z_at(self._s), st.yaw, pitch=pitch,
-                                teleport=self._step == 0)
+                                teleport=self._teleport)
         row = self._replay.at(self._step)
         if row is None:  # the opponent's recording is over: it has finished and left the track
             self._opp_racing = False
@@ -246,7 +279,7 @@ class RaceEnv(gym.Env):
             self._opp_s, self._opp_e = s, e
             self._opp_row = row
             self.world.set_car_pose(1, x, y, z, yaw, pitch=-math.atan(self.track.grade_at(s)),
-                                    teleport=self._step == 0)
+                                    teleport=self._teleport)
 
     def _observation(self) -> np.ndarray:
         # Plain Python floats throughout: for ~65 values, per-element numpy calls cost more than

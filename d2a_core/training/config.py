@@ -34,7 +34,13 @@ class HumansConfig(Section):
         description="evaluation episodes of each checkpoint kept as MCAP episode logs (episodes/*.mcap), to see where it fails",
     )
 
-    omit_at_default = {"eval_logs": 0}
+    train_start_spread: float = Field(
+        0.0, ge=0, le=1,
+        description="training episodes start at a step drawn from the first fraction of the opponent's race "
+                    "(0: always the grid); evaluation always starts from the grid",
+    )
+
+    omit_at_default = {"eval_logs": 0, "train_start_spread": 0.0}
 
 
 class AssistantConfig(Section):

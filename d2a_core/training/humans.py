@@ -175,7 +175,8 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
                                 "to train from the start") from None
         resumed_from = env_steps
     # resets after a resume use fresh seeds so the continued run does not replay old episodes
-    collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
+    spread = {"start_spread": hc.train_start_spread} if hc.train_start_spread else None
+    collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps, reset_options=spread)
     schedule = [round(hc.env_steps * (k + 1) / hc.checkpoints) for k in range(hc.checkpoints)]
     pending = [s for s in schedule if s > env_steps]
     snapshots = _Snapshots(run_dir / "snapshots", hc.snapshot_every, after=env_steps)

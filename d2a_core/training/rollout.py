@@ -30,11 +30,13 @@ class Collector:
 
     Resets use seeds `seed, seed + 1, ...`, so a run is reproducible. With `log_dir`, the first
     `log_episodes` episodes started are written as MCAP episode logs `episode-<seed>.mcap` there
-    (a log is complete once its episode ended; `close` removes the unfinished ones)."""
+    (a log is complete once its episode ended; `close` removes the unfinished ones).
+    `reset_options` go to every reset (e.g. `start_spread` for training starts along the track)."""
 
     def __init__(self, envs: Sequence[RaceEnv], agent: DreamerAgent, seed: int,
-                 log_dir: Path | None = None, log_episodes: int = 0):
+                 log_dir: Path | None = None, log_episodes: int = 0, reset_options: dict[str, Any] | None = None):
         self.envs = list(envs)
+        self._reset_options = dict(reset_options) if reset_options else None
         self.agent = agent
         self.n = len(self.envs)
         self._next_seed = seed
@@ -55,7 +57,7 @@ class Collector:
             self._reset(i)
 
     def _reset(self, i: int) -> None:
-        obs, info = self.envs[i].reset(seed=self._next_seed)
+        obs, info = self.envs[i].reset(seed=self._next_seed, options=self._reset_options)
         if self._logs_left > 0:
             self._logs_left -= 1
             self._open_log(i, self._next_seed, info)

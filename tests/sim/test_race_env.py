@@ -299,3 +299,40 @@ def test_record_episodes_round_trip(straight, tmp_path):
     np.testing.assert_allclose(ep.state["ego"]["s"], [i["s"] for i in infos])
     np.testing.assert_allclose(ep.state["ego"]["reward_terms.left"][1:], [i["reward_terms"]["left"] for i in infos[1:]])
     assert ep.poses["ego"].shape == (len(infos), 4) and "opponent" in ep.poses
+
+
+def moving_opponent(track, speed: float, steps: int) -> OpponentReplay:
+    """An opponent driving the centreline from its grid slot at a constant speed."""
+    s = track.start_grid.opponent.s + speed * 0.1 * np.arange(steps)
+    e = np.full(steps, track.start_grid.opponent.e)
+    xyz = np.array([track.from_frenet(float(si), float(ei)) for si, ei in zip(s, e)])
+    yaw = np.array([track.heading_at(float(si)) for si in s])
+    return OpponentReplay(t=np.arange(steps) * 0.1, x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], yaw=yaw,
+                          speed=np.full(steps, speed), s=s, e=e)
+
+
+def test_a_start_further_along_the_race_keeps_the_grid_gap_and_the_clock(hairpin):
+    """`start_step` k: the opponent where its replay is after k steps, the ego the grid's gap
+    behind it at the opponent's speed, k steps less time left; `start_spread` draws k from the
+    seeded generator (0: the grid start, and the same stream of draws); bad values are refused."""
+    grid = hairpin.start_grid
+    replays = [moving_opponent(hairpin, 25.0, 300)]
+    env = RaceEnv(hairpin, replays=replays, env_config=EnvConfig(time_limit_s=40.0))
+    names = env.observation_names
+    grid_obs, grid_info = env.reset(seed=3)
+    obs, info = env.reset(seed=3, options={"start_step": 120})
+    assert info["opponent_s"] == pytest.approx(grid.opponent.s + 25.0 * 12.0)
+    assert info["s"] == pytest.approx(info["opponent_s"] - (grid.opponent.s - grid.ego.s), abs=0.05)
+    assert info["speed"] == pytest.approx(25.0, abs=0.01) and info["t"] == pytest.approx(12.0)
+    assert dict(zip(names, obs))["time_left"] == pytest.approx(40.0 - 12.0)
+    assert dict(zip(names, obs))["distance"] == pytest.approx(0.0, abs=1e-6) and info["progress"] == pytest.approx(0.0)
+    _, _, terminated, truncated, step_info = env.step(np.array([0.0, 0.5]))
+    assert not (terminated or truncated) and not step_info["collision"]  # no contact from the jump
+    # spread: reproducible per seed, spread over the race, 0 is the grid start
+    starts = [env.reset(seed=s, options={"start_spread": 1.0})[1]["t"] for s in range(12)]
+    assert starts == [env.reset(seed=s, options={"start_spread": 1.0})[1]["t"] for s in range(12)]
+    assert len(set(starts)) > 6 and max(starts) <= 29.9
+    np.testing.assert_array_equal(env.reset(seed=3, options={"start_spread": 0.0})[0], grid_obs)
+    for bad in ({"start_step": 300}, {"start_step": -1}, {"start_spread": 1.5}):
+        with pytest.raises(ValueError, match="start_s"):
+            env.reset(seed=0, options=bad)
