@@ -33,7 +33,6 @@ class HumansConfig(Section):
         0, ge=0,
         description="evaluation episodes of each checkpoint kept as MCAP episode logs (episodes/*.mcap), to see where it fails",
     )
-
     train_start_spread: float = Field(
         0.0, ge=0, le=1,
         description="training episodes start at a step drawn from the first fraction of the opponent's race "
