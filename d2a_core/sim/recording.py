@@ -100,3 +100,22 @@ def step_record(race, info: dict[str, Any], reward: float = 0.0) -> tuple[dict[s
         ego_state["reward_terms"] = RewardTerms.zeros().as_dict()
     opp_state = {"s": info["opponent_s"], "e": info["opponent_e"], "racing": info["opponent_racing"]}
     return cars, {"ego": ego_state, "opponent": opp_state}
+
+
+# The episode outcome every training/evaluation log carries in its metadata (so a log can be
+# sorted without reading its messages).
+OUTCOME_FIELDS = ("progress_m", "finished", "collision", "off_track", "return")
+
+
+def close_with_outcome(recorder: EpisodeRecorder, metrics: dict[str, Any]) -> None:
+    """Write the episode's outcome (`OUTCOME_FIELDS` of its metrics) into the log and close it."""
+    recorder.update_metadata({"outcome": {k: metrics[k] for k in OUTCOME_FIELDS}})
+    recorder.close()
+
+
+def abort_open(recorders: list[EpisodeRecorder | None]) -> None:
+    """Abandon the logs still being written (their partial files are removed), in place."""
+    for i, recorder in enumerate(recorders):
+        if recorder is not None:
+            recorder.abort()
+            recorders[i] = None

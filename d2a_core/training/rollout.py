@@ -22,7 +22,7 @@ from d2a_core.agents.dreamer.agent import DreamerAgent, PolicyState
 from d2a_core.evaluation.metrics import episode_metrics
 from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
-from d2a_core.sim.recording import scene_of, step_record
+from d2a_core.sim.recording import abort_open, close_with_outcome, scene_of, step_record
 
 
 class Collector:
@@ -98,18 +98,13 @@ class Collector:
                 self._done[i] = True
                 finished.append(episode_metrics(self._infos[i], self._rewards[i]))
                 if recorder is not None:
-                    recorder.update_metadata({"outcome": {k: finished[-1][k] for k in
-                                                          ("progress_m", "finished", "collision", "off_track", "return")}})
-                    recorder.close()
+                    close_with_outcome(recorder, finished[-1])
                     self._recorders[i] = None
         return finished
 
     def close(self) -> None:
         """Remove the episode logs whose episodes had not ended."""
-        for i, recorder in enumerate(self._recorders):
-            if recorder is not None:
-                recorder.abort()
-                self._recorders[i] = None
+        abort_open(self._recorders)
 
     def _open_log(self, i: int, seed: int, info: dict[str, Any]) -> None:
         assert self._log_dir is not None and self._scene is not None

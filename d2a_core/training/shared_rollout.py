@@ -45,7 +45,7 @@ from d2a_core.evaluation.metrics import episode_metrics
 from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, pick_intent
 from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
-from d2a_core.sim.recording import scene_of, step_record
+from d2a_core.sim.recording import abort_open, close_with_outcome, scene_of, step_record
 from d2a_core.training.partner_window import PARTNER_SLOT, PartnerWindow
 
 ASSISTANT_TERMS = ("task", "intervention", "expert_reward", "expert_distance", "total")
@@ -331,10 +331,7 @@ class SharedCollector:
 
     def close(self) -> None:
         """Abandon the episode logs still being written (their partial files are removed)."""
-        for i, recorder in enumerate(self._recorders):
-            if recorder is not None:
-                recorder.abort()
-                self._recorders[i] = None
+        abort_open(self._recorders)
 
     # --- episode logs
 
@@ -384,9 +381,7 @@ class SharedCollector:
             if spec.swap_step is None:
                 row["intent_counts"] = np.bincount(ep["y_hat"], minlength=len(self.intents)).tolist()
         if self._recorders[i] is not None:
-            self._recorders[i].update_metadata({"outcome": {k: row[k] for k in ("progress_m", "finished", "collision",
-                                                                              "off_track", "return")}})
-            self._recorders[i].close()
+            close_with_outcome(self._recorders[i], row)
             row["log"] = str(self._recorders[i].path)
             self._recorders[i] = None
         if self.keep_steps:
