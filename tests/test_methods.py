@@ -96,6 +96,16 @@ def test_configure_uses_the_intent_scale_and_refuses_bad_pairs():
         get_method("dream2assist").configure(twice, PAIR)
 
 
+def test_intent_reads_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_head():
+    base = Config()
+    assert "reads" not in get_method("dream2assist").configure(base, PAIR).dreamer.extra_heads[0].options
+    wide = base.model_copy(update={"assistant": base.assistant.model_copy(update={"intent_reads": "latent+embedding"})})
+    assert get_method("dream2assist+a").configure(wide, PAIR).dreamer.extra_heads[0].options["reads"] == "latent+embedding"
+    for name in ("dreamer", "no-rssm"):
+        with pytest.raises(UsageError, match="intent_reads"):
+            get_method(name).configure(wide, PAIR)
+
+
 def test_registering_twice_or_without_entry_point_is_refused():
     with pytest.raises(ValueError, match="already registered"):
         register_method(Method("dreamer", True, 1.0, 1.0, ("env",), "x:Y"))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from d2a_core.config.section import Section
@@ -63,5 +65,10 @@ class AssistantConfig(Section):
         1, ge=1, le=64,
         description="the human's last K actions in the assistant's observation (1: the partner slot alone, the paper's)",
     )
+    intent_reads: Literal["latent", "latent+embedding"] = Field(
+        "latent",
+        description="what the intent head reads: the model state (the paper's p(y_hat | s)), or the model state plus "
+                    "the encoder's embedding of the current observation (the actor still sees only the model state)",
+    )
 
-    omit_at_default = {"partner_window": 1}
+    omit_at_default = {"partner_window": 1, "intent_reads": "latent"}

@@ -16,9 +16,10 @@ from d2a_core.training.methods import get_method
 OBS, ENVS, EPISODE = 5, 4, 20
 
 
-def _smoke_agent(**overrides) -> DreamerAgent:
-    """The smoke preset's agent with dream2assist's intent head over (pass, stay)."""
-    config = get_method("dream2assist").configure(load("smoke").config, ("pass", "stay"))
+def _smoke_agent(reads: str = "latent", **overrides) -> DreamerAgent:
+    """The smoke preset's agent with dream2assist's intent head over (pass, stay), reading `reads`."""
+    config = load("smoke", overrides=[f"assistant.intent_reads={reads}"]).config
+    config = get_method("dream2assist").configure(config, ("pass", "stay"))
     dreamer = config.dreamer.model_copy(update={"prefill_steps": 0, **overrides})
     return DreamerAgent(gym.spaces.Box(-np.inf, np.inf, (OBS,), np.float32),
                         gym.spaces.Box(-1.0, 1.0, (2,), np.float32), DreamerConfig(**dreamer.model_dump()), seed=0)
@@ -44,10 +45,11 @@ class _LabelledEpisodes:
                 "is_first": np.full(ENVS, first), "is_terminal": np.zeros(ENVS, bool)}
 
 
-def test_intent_head_learns_the_label_well_above_chance():
+@pytest.mark.parametrize("reads", ["latent", "latent+embedding"])
+def test_intent_head_learns_the_label_well_above_chance(reads):
     torch.manual_seed(0)
     # A learning rate 10x the smoke preset's, so that a few hundred updates suffice.
-    agent = _smoke_agent(model_lr=1e-3)
+    agent = _smoke_agent(model_lr=1e-3, reads=reads)
     assert list(agent.world_model.extra_heads) == ["intent"]
     assert agent.world_model.extra_heads["intent"].intents == ("pass", "stay")
     episodes = _LabelledEpisodes(seed=1)
@@ -89,3 +91,39 @@ def test_intent_head_options_and_labels_are_checked(make_agent, fill_random):
     fill_random(agent, 20, intent=lambda t: np.full(2, -1))
     metrics = agent.train_step()
     assert metrics["wm/intent_loss"] == 0.0 and metrics["wm/intent_accuracy"] == 0.0
+
+
+def test_a_head_reading_the_embedding_uses_it_and_gets_it_while_acting():
+    """`reads="latent+embedding"`: the same model state with another observation embedding gives
+    another estimate; the acting state keeps the embedding (only for such a head), the blended
+    action keeps it, and the head's loss trains the encoder through it."""
+    torch.manual_seed(0)
+    plain, wide = _smoke_agent(), _smoke_agent(reads="latent+embedding")
+    episodes = _LabelledEpisodes(seed=3)
+    step = episodes.step()
+    _, plain_state = plain.policy(step, None, explore=False)
+    assert plain_state.embedding is None
+    _, state = wide.policy(step, None, explore=False)
+    assert state.embedding is not None and state.embedding.shape == (ENVS, wide.config.units)
+    head = wide.world_model.extra_heads["intent"]
+    with torch.no_grad():
+        head.embedding_in.weight.normal_()
+    probs = wide.predict(state)["intent"]
+    other = torch.randn_like(state.embedding)
+    assert not torch.allclose(head.predict(state.latent, other), probs)
+    with pytest.raises(TrainingError, match="reads the observation embedding"):
+        head.predict(state.latent)
+    kept = wide.with_action(state, np.zeros((ENVS, 2), np.float32))
+    assert kept.embedding is state.embedding
+    np.testing.assert_allclose(wide.intent_probs(kept), probs.numpy(), rtol=1e-6)
+
+    rng = np.random.default_rng(4)
+    for _ in range(3 * EPISODE):
+        wide.observe({**episodes.step(), "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32),
+                      "intent": episodes.intent.copy()})
+    before = {name: p.detach().clone() for name, p in head.embedding_in.named_parameters()}
+    wide.train_step()
+    assert all(not torch.equal(before[name], p) for name, p in head.embedding_in.named_parameters())
+    with pytest.raises(Exception, match="reserved"):
+        wide.observe({**episodes.step(), "action": np.zeros((ENVS, 2), np.float32), "intent": episodes.intent.copy(),
+                      "embedding": np.zeros((ENVS, 3), np.float32)})

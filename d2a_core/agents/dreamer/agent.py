@@ -32,6 +32,7 @@ from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .behavior import Behavior
 from .config import DreamerConfig
+from .heads import EMBEDDING_FIELD
 from .latent import Latent
 from .replay import SequenceReplay
 from .world_model import WorldModel
@@ -47,6 +48,8 @@ class PolicyState:
 
     latent: Latent
     action: Tensor
+    # the encoder's embedding of the last observation, kept only when a head reads it
+    embedding: Tensor | None = None
 
 
 class DreamerAgent:
@@ -135,7 +138,8 @@ class DreamerAgent:
         rssm = self.world_model.rssm
         with self._autocast():
             h = rssm.step(state.latent, state.action)
-            logits = rssm.posterior_logits(h, self.world_model.embed(obs))
+            embedding = self.world_model.embed(obs)
+            logits = rssm.posterior_logits(h, embedding)
             feat = rssm.sample(h.float(), logits, rssm.uniform((n,), generator, self.device))
             actor = self.behavior.actor
             if explore:
@@ -143,7 +147,8 @@ class DreamerAgent:
                 action, _ = actor.sample(feat, noise)
             else:
                 action = actor.mode(feat)
-        new_state = PolicyState(feat, action.float())
+        kept = embedding.float() if self.world_model.heads_read_embedding else None
+        new_state = PolicyState(feat, action.float(), kept)
         return self._to_env_action(new_state.action), new_state
 
     @torch.no_grad()
@@ -153,7 +158,7 @@ class DreamerAgent:
         heads = self.world_model.extra_heads
         if "intent" not in heads:
             return None
-        return heads["intent"].predict(state.latent).float().cpu().numpy()
+        return heads["intent"].predict(state.latent, state.embedding).float().cpu().numpy()
 
     def features(self, state: PolicyState) -> np.ndarray:
         """The model state's deterministic part h (N, deter): what the report's t-SNE of
@@ -163,7 +168,7 @@ class DreamerAgent:
     def with_action(self, state: PolicyState, env_actions: np.ndarray) -> PolicyState:
         """The same state with another action taken (e.g. a blended human+assistant action), so
         that the next `policy` call conditions on what was really executed."""
-        return PolicyState(state.latent, self._to_internal_action(env_actions))
+        return PolicyState(state.latent, self._to_internal_action(env_actions), state.embedding)
 
     @torch.no_grad()
     def predict(self, state: PolicyState) -> dict[str, Tensor]:
@@ -171,7 +176,7 @@ class DreamerAgent:
         extra head (e.g. an intent classifier's probabilities)."""
         latent = state.latent
         out = {"reward": self.world_model.reward(latent), "continue": self.world_model.continue_prob(latent)}
-        out.update(self.world_model.predict_extra(latent))
+        out.update(self.world_model.predict_extra(latent, state.embedding))
         return out
 
     # --- data
@@ -182,6 +187,8 @@ class DreamerAgent:
         missing = [key for key in (*_CORE_FIELDS, "action") if key not in transition]
         if missing:
             raise UsageError(f"observe: transition lacks fields {missing}")
+        if EMBEDDING_FIELD in transition:
+            raise UsageError(f"observe: {EMBEDDING_FIELD!r} is reserved for the world model's own embeddings")
         n = np.asarray(transition["obs"]).shape[0]
         step: dict[str, np.ndarray] = {
             "obs": np.asarray(transition["obs"], np.float32).reshape(n, self.obs_size),

@@ -13,7 +13,7 @@ on a field of the replayed batch. To add one without touching the world model:
             self.net = latent_mlp(config, out_size=...)
         def loss(self, latent, batch):        # -> per-step loss (B, T)
             ...
-        def predict(self, latent):            # -> whatever callers need at run time
+        def predict(self, latent, embedding=None):  # -> whatever callers need at run time
             ...
 
 then list it in the config: `DreamerConfig(extra_heads=[HeadConfig(name="intent",
@@ -42,11 +42,19 @@ HEAD_KINDS: dict[str, type[WorldModelHead]] = {}
 """Registered head kinds by name."""
 
 
+EMBEDDING_FIELD = "embedding"
+"""Batch key under which the world model hands its observation embeddings (B, T, units) to the
+heads whose `reads_embedding` is set (a reserved name: no replay field may use it)."""
+
+
 class WorldModelHead(nn.Module, ABC):
     """A prediction head on the model state, trained jointly with the world model."""
 
     #: batch fields the loss reads (checked when a batch lacks them)
     fields: tuple[str, ...] = ()
+    #: whether the head also reads the encoder's embedding of the current observation: then its
+    #: loss finds it in the batch under EMBEDDING_FIELD and `predict` gets it as `embedding`
+    reads_embedding: bool = False
 
     def __init__(self, config: DreamerConfig) -> None:
         super().__init__()
@@ -56,8 +64,9 @@ class WorldModelHead(nn.Module, ABC):
         """Per-step loss (B, T) for states of leading shape (B, T) and the batch's fields (B, T, ...)."""
 
     @abstractmethod
-    def predict(self, latent: Latent) -> Tensor:
-        """Run-time prediction for states of any leading shape."""
+    def predict(self, latent: Latent, embedding: Tensor | None = None) -> Tensor:
+        """Run-time prediction for states of any leading shape (and, for a head that reads it,
+        the embedding of the observation the state was inferred from)."""
 
     def loss_and_metrics(self, latent: Latent, batch: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         """The per-step loss and scalar metrics (logged as `wm/<head name>_<key>`, e.g. an
@@ -105,14 +114,29 @@ class CategoricalHead(WorldModelHead):
     """Classifier p(y | s) trained by negative log-likelihood on an integer label field.
     Labels < 0 mean 'unknown' and are left out of the loss (partial labelling)."""
 
-    def __init__(self, config: DreamerConfig, field: str = "label", classes: int = 2) -> None:
+    def __init__(self, config: DreamerConfig, field: str = "label", classes: int = 2, reads: str = "latent") -> None:
         super().__init__(config)
         if classes < 2:
             raise TypeError("classes must be at least 2")
+        if reads not in ("latent", "latent+embedding"):
+            raise TypeError(f"reads must be 'latent' or 'latent+embedding', got {reads!r}")
         self.field = field
         self.fields = (field,)
         self.classes = classes
         self.net = latent_mlp(config, classes)
+        self.reads_embedding = reads == "latent+embedding"
+        # The embedding enters the MLP's first layer beside (h, z): a direct path from what the
+        # encoder sees now (e.g. a window of the partner's actions) that the stochastic state
+        # need not carry.
+        self.embedding_in = nn.Linear(config.units, config.units, bias=False) if self.reads_embedding else None
+
+    def _logits(self, latent: Latent, embedding: Tensor | None) -> Tensor:
+        if self.embedding_in is None:
+            return self.net(latent)
+        if embedding is None:
+            raise TrainingError(f"head on field {self.field!r} reads the observation embedding; none was given")
+        pre = self.net.first(latent.h, latent.index, latent.probs)
+        return self.net.finish(pre + self.embedding_in(embedding.to(pre.dtype)))
 
     def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
         return self.loss_and_metrics(latent, batch)[0]
@@ -123,16 +147,16 @@ class CategoricalHead(WorldModelHead):
         if bool((label >= self.classes).any()):
             raise TrainingError(f"head field {self.field!r} has a label >= its {self.classes} classes")
         known = label >= 0
-        log_probs = torch.log_softmax(self.net(latent).float(), -1)
+        log_probs = torch.log_softmax(self._logits(latent, batch.get(EMBEDDING_FIELD)).float(), -1)
         nll = -log_probs.gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
         with torch.no_grad():
             correct = (log_probs.argmax(-1) == label) & known
             accuracy = correct.float().sum() / known.float().sum().clamp(min=1.0)
         return torch.where(known, nll, torch.zeros_like(nll)), {"accuracy": accuracy}
 
-    def predict(self, latent: Latent) -> Tensor:
+    def predict(self, latent: Latent, embedding: Tensor | None = None) -> Tensor:
         """Class probabilities (..., classes)."""
-        return torch.softmax(self.net(latent).float(), -1)
+        return torch.softmax(self._logits(latent, embedding).float(), -1)
 
 
 @register_head("intent")
@@ -144,13 +168,16 @@ class IntentHead(CategoricalHead):
     The paper predicts the symlog two-hot code of the integer label; a categorical over the
     pair's intents is the same prediction without an ordering between intents that do not have
     one, and its probabilities are the classifier's output that F1 and y_hat read directly.
-    `predict` gives the probabilities (..., len(intents)); y_hat is their argmax."""
+    `predict` gives the probabilities (..., len(intents)); y_hat is their argmax. `reads`:
+    "latent" (the paper's p(y_hat | s)) or "latent+embedding" (also the encoder's embedding of
+    the current observation, see `CategoricalHead`)."""
 
-    def __init__(self, config: DreamerConfig, intents: Sequence[str], field: str = "intent") -> None:
+    def __init__(self, config: DreamerConfig, intents: Sequence[str], field: str = "intent",
+                 reads: str = "latent") -> None:
         intents = tuple(intents)
         if len(intents) < 2 or len(set(intents)) != len(intents) or not all(isinstance(i, str) for i in intents):
             raise TypeError(f"intents must be at least two distinct names, got {list(intents)}")
-        super().__init__(config, field=field, classes=len(intents))
+        super().__init__(config, field=field, classes=len(intents), reads=reads)
         self.intents = intents
 
 
@@ -173,6 +200,6 @@ class TwoHotHead(WorldModelHead):
     def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
         return self.twohot.loss(self.net(latent), batch[self.field].float())
 
-    def predict(self, latent: Latent) -> Tensor:
+    def predict(self, latent: Latent, embedding: Tensor | None = None) -> Tensor:
         """Predicted value (...)."""
         return self.twohot.mean(self.net(latent))

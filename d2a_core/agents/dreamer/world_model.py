@@ -14,7 +14,7 @@ from d2a_core.errors import TrainingError
 
 from .config import DreamerConfig
 from .distributions import TwoHot, categorical_kl, symlog, unimix_probs
-from .heads import WorldModelHead, build_head, latent_mlp
+from .heads import EMBEDDING_FIELD, WorldModelHead, build_head, latent_mlp
 from .latent import Latent, first_layers
 from .nets import MLP
 from .rssm import RSSM, Observed
@@ -81,9 +81,15 @@ class WorldModel(nn.Module):
         """Predicted probability that the episode continues after state `latent`."""
         return torch.sigmoid(self.continue_head(latent).squeeze(-1).float())
 
-    def predict_extra(self, latent: Latent) -> dict[str, Tensor]:
-        """Run-time predictions of every extra head."""
-        return {name: head.predict(latent) for name, head in self.extra_heads.items()}
+    def predict_extra(self, latent: Latent, embedding: Tensor | None = None) -> dict[str, Tensor]:
+        """Run-time predictions of every extra head (`embedding`: of the observation `latent`
+        was inferred from, for the heads that read it)."""
+        return {name: head.predict(latent, embedding) for name, head in self.extra_heads.items()}
+
+    @property
+    def heads_read_embedding(self) -> bool:
+        """Whether any extra head reads the observation embedding."""
+        return any(head.reads_embedding for head in self.extra_heads.values())
 
     def loss(self, batch: Mapping[str, Tensor], generator: torch.Generator | None) -> WorldModelOutput:
         """World-model loss of a batch of sequences (B, T, ...): obs, action (taken at each
@@ -92,7 +98,8 @@ class WorldModel(nn.Module):
         obs = batch["obs"]
         action = batch["action"]
         prev_actions = torch.cat((torch.zeros_like(action[:, :1]), action[:, :-1]), 1)
-        observed = self.rssm.observe(self.embed(obs), prev_actions, batch["is_first"], generator)
+        embedding = self.embed(obs)
+        observed = self.rssm.observe(embedding, prev_actions, batch["is_first"], generator)
         latent = observed.latent
         heads = [self.decoder, self.reward_head, self.continue_head]
         decoder_pre, reward_pre, continue_pre = first_layers(latent, heads)
@@ -120,8 +127,9 @@ class WorldModel(nn.Module):
             "wm/kl_rep": rep.mean(),
             **self._terminal_fit(reward_logits, continue_logits, batch),
         }
+        head_batch = {**batch, EMBEDDING_FIELD: embedding} if self.heads_read_embedding else batch
         for name, head in self.extra_heads.items():
-            head_loss, head_metrics = self._head_loss(name, head, latent, batch)
+            head_loss, head_metrics = self._head_loss(name, head, latent, head_batch)
             per_step = per_step + self.head_weights[name] * head_loss
             metrics[f"wm/{name}_loss"] = head_loss.mean()
             metrics.update({f"wm/{name}_{key}": value for key, value in head_metrics.items()})
