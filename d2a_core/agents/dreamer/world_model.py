@@ -62,6 +62,8 @@ class WorldModel(nn.Module):
         self.continue_head = latent_mlp(c, 1)
         self.extra_heads = nn.ModuleDict({spec.name: build_head(spec, c) for spec in c.extra_heads})
         self.head_weights = {spec.name: spec.weight for spec in c.extra_heads}
+        # fixed at construction: whether acting keeps, and the loss hands out, the embedding
+        self.heads_read_embedding = any(head.reads_embedding for head in self.extra_heads.values())
         self.twohot = TwoHot(c.bins, c.bin_range)
 
     def _apply(self, fn, recurse=True):  # keep the two-hot bins on the module's device
@@ -85,11 +87,6 @@ class WorldModel(nn.Module):
         """Run-time predictions of every extra head (`embedding`: of the observation `latent`
         was inferred from, for the heads that read it)."""
         return {name: head.predict(latent, embedding) for name, head in self.extra_heads.items()}
-
-    @property
-    def heads_read_embedding(self) -> bool:
-        """Whether any extra head reads the observation embedding."""
-        return any(head.reads_embedding for head in self.extra_heads.values())
 
     def loss(self, batch: Mapping[str, Tensor], generator: torch.Generator | None) -> WorldModelOutput:
         """World-model loss of a batch of sequences (B, T, ...): obs, action (taken at each
