@@ -22,7 +22,6 @@ from d2a_cli.common import (
     with_common_options,
 )
 from d2a_core.evaluation.criteria import CRITERION_METRIC
-from d2a_core.pipelines.evaluate import CRITERION, METRICS
 
 
 @with_common_options(seed=False)
@@ -40,7 +39,9 @@ def eval_assistants(
     run: RunContext,
 ) -> None:
     """Paired evaluation: each human unassisted and with each assistant, on the same episodes."""
-    from d2a_core.pipelines.evaluate import evaluate
+    # imported here, not at module level: it pulls in torch, which every other `d2a` command
+    # would then pay for at start-up (seconds)
+    from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
                       episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=print_stage)
@@ -59,7 +60,7 @@ def eval_assistants(
                 blocks = [e["intents"][intent][group] for e in shown]
                 for m in METRICS:
                     table.add_row(f"Δ {_SHORT[m]}", *(f"{b[m]['mean']:+.2f} ± {b[m]['std']:.2f}" for b in blocks))
-                table.add_row(f"{CRITERION_METRIC[intent].replace('_', ' ')}, unassisted → assisted", *(_criterion_change(b) for b in blocks))
+                table.add_row(f"{CRITERION_METRIC[intent].replace('_', ' ')}, unassisted → assisted", *(_criterion_change(b, CRITERION) for b in blocks))
                 table.add_row("intent F1", *("-" if e["intents"][intent]["intent_f1"] is None
                                              else f"{e['intents'][intent]['intent_f1']:.3f}" for e in shown))
                 out_console.print(table)
@@ -70,8 +71,8 @@ def eval_assistants(
 _SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate",
           "intervention": "intervention", "mean_speed_m_s": "mean speed (m/s)"}
 
-def _criterion_change(block: dict[str, Any]) -> str:
-    before, change = block.get(f"{CRITERION}_unassisted"), block.get(CRITERION)
+def _criterion_change(block: dict[str, Any], criterion: str) -> str:
+    before, change = block.get(f"{criterion}_unassisted"), block.get(criterion)
     if before is None or change is None or before["mean"] is None:
         return "-"  # an evaluation stored before the criterion was recorded
     return before_after(before["mean"], before["mean"] + change["mean"])

@@ -22,3 +22,14 @@ def test_usage_errors_exit_2(cli):
     assert cli("artifacts", "ls", "--no-such-option").code == 2
     res = cli("artifacts", "show", "--json")   # missing argument
     assert res.code == 2 and "error" in res.json
+
+
+def test_the_cli_starts_without_importing_torch_or_the_simulator():
+    # every subprocess call of `d2a` (store commands, --help, scripts) would otherwise pay seconds
+    # of torch and pybullet import before doing anything; commands import them when they run
+    import subprocess
+    import sys
+
+    code = "import sys, d2a_cli.main; print(sorted({'torch', 'pybullet', 'matplotlib'} & set(sys.modules)))"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.strip() == "[]"
