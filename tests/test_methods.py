@@ -106,6 +106,21 @@ def test_intent_reads_reaches_the_head_only_when_set_and_only_for_a_dreamer_inte
             get_method(name).configure(wide, PAIR)
 
 
+def test_intent_lr_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_head():
+    from d2a_core.config.section import record
+
+    base = Config()
+    plain = get_method("dream2assist").configure(base, PAIR)
+    assert plain.dreamer.extra_heads[0].lr is None
+    # unset, neither the assistant section nor the head names it: earlier runs keep their keys
+    assert "intent_lr" not in record(plain.assistant) and "lr" not in record(plain.dreamer)["extra_heads"][0]
+    fast = base.model_copy(update={"assistant": base.assistant.model_copy(update={"intent_lr": 1e-3})})
+    assert get_method("dream2assist+a-r").configure(fast, PAIR).dreamer.extra_heads[0].lr == 1e-3
+    for name in ("dreamer", "no-rssm"):
+        with pytest.raises(UsageError, match="intent_lr"):
+            get_method(name).configure(fast, PAIR)
+
+
 def test_registering_twice_or_without_entry_point_is_refused():
     with pytest.raises(ValueError, match="already registered"):
         register_method(Method("dreamer", True, 1.0, 1.0, ("env",), "x:Y"))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, Optional
 
 from pydantic import Field
 
@@ -71,4 +71,10 @@ class AssistantConfig(Section):
                     "the encoder's embedding of the current observation (the actor still sees only the model state)",
     )
 
-    omit_at_default = {"partner_window": 1, "intent_reads": "latent"}
+    intent_lr: Optional[float] = Field(
+        None, gt=0,
+        description="learning rate of the intent head's own weights (None: dreamer.model_lr, the paper's single "
+                    "world-model rate); intent_scale weighs its loss in the shared representation instead",
+    )
+
+    omit_at_default = {"partner_window": 1, "intent_reads": "latent", "intent_lr": None}

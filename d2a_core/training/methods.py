@@ -81,7 +81,8 @@ class Method:
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
         set, and for a Dreamer-family method with an intent head, an `intent` head over `intents`
-        (weight `assistant.intent_scale`, input `assistant.intent_reads`) appended to `dreamer.extra_heads`."""
+        (weight `assistant.intent_scale`, input `assistant.intent_reads`, learning rate
+        `assistant.intent_lr`) appended to `dreamer.extra_heads`."""
         _require_implemented(self)
         if len(intents) < 2 or len(set(intents)) != len(intents):
             raise UsageError(f"method {self.name!r}: a pair needs at least two distinct intents, got {list(intents)}")
@@ -89,6 +90,9 @@ class Method:
         dreamer_head = self.intent_head and self.entry_point == DREAMER_AGENT
         if assistant.intent_reads != "latent" and not dreamer_head:
             raise UsageError(f"assistant.intent_reads={assistant.intent_reads!r} sets the input of a Dreamer intent "
+                             f"head; method {self.name!r} has none")
+        if assistant.intent_lr is not None and not dreamer_head:
+            raise UsageError(f"assistant.intent_lr={assistant.intent_lr} sets the learning rate of a Dreamer intent "
                              f"head; method {self.name!r} has none")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
@@ -101,7 +105,8 @@ class Method:
             options: dict[str, Any] = {"field": INTENT_HEAD_NAME, "intents": list(intents)}
             if assistant.intent_reads != "latent":  # named only when set, so older runs keep their keys
                 options["reads"] = assistant.intent_reads
-            head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options)
+            head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options,
+                              lr=assistant.intent_lr)
             update["dreamer"] = config.dreamer.model_copy(update={"extra_heads": [*heads, head]})
         return config.model_copy(update=update)
 

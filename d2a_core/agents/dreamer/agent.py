@@ -88,7 +88,8 @@ class DreamerAgent:
             self.world_model = WorldModel(self.obs_size, self.action_size, self.config).to(self.device)
             self.behavior = Behavior(self.action_size, self.discrete, self.config).to(self.device)
         c = self.config
-        self.model_opt = torch.optim.Adam(self.world_model.parameters(), lr=c.model_lr, eps=c.model_eps, fused=True)
+        self.model_opt = torch.optim.Adam(_model_param_groups(self.world_model, c), lr=c.model_lr, eps=c.model_eps,
+                                          fused=True)
         self.actor_opt = torch.optim.Adam(self.behavior.actor.parameters(), lr=c.actor_lr, eps=c.actor_eps, fused=True)
         self.critic_opt = torch.optim.Adam(self.behavior.critic.parameters(), lr=c.critic_lr, eps=c.critic_eps, fused=True)
         self.train_generator = torch.Generator(self.device).manual_seed(seed * 3 + 1)
@@ -360,3 +361,15 @@ def build_assistant(config: DreamerConfig, obs_space: gym.spaces.Space, act_spac
     one, is already in `config.extra_heads` (see `Method.configure`), so `intents` is not needed."""
     del intents
     return DreamerAgent(obs_space, act_space, config.model_copy(update={"device": device}), seed=seed)
+
+
+def _model_param_groups(world_model: WorldModel, config: DreamerConfig) -> Any:
+    """The world model's parameters for its optimiser: one group at `model_lr`, plus one group
+    per extra head with its own `lr` (those heads' weights leave the first group)."""
+    own_lr = {spec.name: spec.lr for spec in config.extra_heads if spec.lr is not None}
+    if not own_lr:
+        return world_model.parameters()  # one group, as every run before per-head rates
+    heads = {name: list(world_model.extra_heads[name].parameters()) for name in own_lr}
+    taken = {id(p) for params in heads.values() for p in params}
+    return [{"params": [p for p in world_model.parameters() if id(p) not in taken]},
+            *({"params": heads[name], "lr": lr} for name, lr in own_lr.items())]

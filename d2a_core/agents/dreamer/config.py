@@ -3,20 +3,26 @@ DreamerV3 2023 for everything the table leaves out)."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from d2a_core.config.section import Section
 
-class HeadConfig(BaseModel):
+
+class HeadConfig(Section):
     """One extra world-model head, built by name from the head registry (see `heads.py`)."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
     name: str = Field(min_length=1, description="key of the head in the world model and its metrics")
     kind: str = Field(min_length=1, description="registered head kind, e.g. 'categorical'")
     weight: float = Field(1.0, ge=0, description="scale of this head's loss in the world-model loss")
     options: dict[str, Any] = Field(default_factory=dict, description="kind-specific settings")
+    # Adam steps each weight by about the learning rate whatever the loss's scale, so `weight`
+    # changes how much the head shapes the shared representation, not how fast the head itself
+    # learns; `lr` does the latter.
+    lr: Optional[float] = Field(None, gt=0, description="learning rate of this head's own weights (None: model_lr)")
+
+    omit_at_default = {"lr": None}
 
 
 class DreamerConfig(BaseModel):
