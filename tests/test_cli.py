@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 
 def test_help_lists_subcommands_and_global_options(cli):
@@ -27,9 +29,6 @@ def test_usage_errors_exit_2(cli):
 def test_the_cli_starts_without_importing_torch_or_the_simulator():
     # every subprocess call of `d2a` (store commands, --help, scripts) would otherwise pay seconds
     # of torch and pybullet import before doing anything; commands import them when they run
-    import subprocess
-    import sys
-
     code = "import sys, d2a_cli.main; print(sorted({'torch', 'pybullet', 'matplotlib'} & set(sys.modules)))"
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert res.stdout.strip() == "[]"

@@ -88,12 +88,11 @@ class Method:
             raise UsageError(f"method {self.name!r}: a pair needs at least two distinct intents, got {list(intents)}")
         assistant = config.assistant
         dreamer_head = self.intent_head and self.entry_point == DREAMER_AGENT
-        if assistant.intent_reads != "latent" and not dreamer_head:
-            raise UsageError(f"assistant.intent_reads={assistant.intent_reads!r} sets the input of a Dreamer intent "
-                             f"head; method {self.name!r} has none")
-        if assistant.intent_lr is not None and not dreamer_head:
-            raise UsageError(f"assistant.intent_lr={assistant.intent_lr} sets the learning rate of a Dreamer intent "
-                             f"head; method {self.name!r} has none")
+        for key in ("intent_reads", "intent_lr"):  # settings of a Dreamer intent head, neutral by default
+            value = getattr(assistant, key)
+            if value != assistant.omit_at_default[key] and not dreamer_head:
+                raise UsageError(f"assistant.{key}={value!r} configures a Dreamer intent head; "
+                                 f"method {self.name!r} has none")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
         if dreamer_head:
