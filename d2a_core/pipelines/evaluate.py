@@ -236,9 +236,7 @@ class _Session:
         self._unassisted: list[dict] | None = None
 
     def make_env(self) -> RaceEnv:
-        cfg = self.cfg
-        return RaceEnv(self.bundle.track, self.bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+        return self.bundle.env(self.cfg)
 
     def run(self, name: str, assistant=None, metadata: dict[str, Any] | None = None,
             partner_window: int = 1) -> tuple[list[dict], list[dict]]:

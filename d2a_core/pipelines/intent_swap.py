@@ -184,8 +184,7 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
     used = sorted({s.human for s in specs} | {s.swap_human for s in specs})
 
     def make_env() -> RaceEnv:
-        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+        return bundle.env(cfg)
 
     probe = make_env()
     obs_space, act_space = probe.observation_space, probe.action_space

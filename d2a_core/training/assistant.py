@@ -147,8 +147,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     keep_freed_memory()
 
     def make_env() -> RaceEnv:
-        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+        return bundle.env(cfg)
 
     envs = [make_env() for _ in range(ac.num_envs)]
     obs_space, act_space = envs[0].observation_space, envs[0].action_space

@@ -71,6 +71,12 @@ class TrackBundle:
     replay_ids: list[str]
     replays: list[OpponentReplay]
 
+    def env(self, cfg: Any, intent: str | None = None) -> RaceEnv:
+        """A race env on this track with its replays and `cfg`'s env, reward, vehicle and world
+        sections (`cfg`: a `Config`, or anything with those attributes)."""
+        return RaceEnv(self.track, self.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
+                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+
 
 def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
     """A track by id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
@@ -155,8 +161,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     dreamer_cfg = cfg.dreamer.model_copy(update={"device": device, "model_lr": hc.model_lr if hc.model_lr is not None else cfg.dreamer.model_lr})
 
     def make_env() -> RaceEnv:
-        return RaceEnv(bundle.track, bundle.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+        return bundle.env(cfg, intent)
 
     envs = [make_env() for _ in range(hc.num_envs)]
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)

@@ -59,8 +59,7 @@ def drive(store: Store, ref: str, episodes: int) -> tuple[list[dict], list, list
     humans = [h for label, (_, pop) in enumerate(populations) for h in select_humans(pop, intents[label], label)]
 
     def make_env() -> RaceEnv:
-        return RaceEnv(bundle.track, bundle.replays, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
+        return bundle.env(cfg)
 
     probe = make_env()
     obs_space, act_space = probe.observation_space, probe.action_space
