@@ -27,6 +27,14 @@ from d2a_core.artifacts import Store
 WINDOW = 16  # the No-RSSM baseline's window (paper appendix): about 1.5 s
 
 
+def previous_actions(actions: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """Per step t of one episode (T, 2): the human's actions t-window .. t-1, zero before the
+    start. The assistant acts in the same step as the human, so this, never a_t, is what it has
+    seen with `assistant.partner_window` = window: the fair comparison with its estimate."""
+    padded = np.vstack([np.zeros((window, 2), np.float32), actions])
+    return np.stack([padded[t:t + window].ravel() for t in range(len(actions))])
+
+
 def features(actions: np.ndarray) -> dict[str, np.ndarray]:
     """Feature sets per step of one episode (T, 2) of human actions, each using steps <= t only."""
     n = len(actions)
@@ -37,10 +45,7 @@ def features(actions: np.ndarray) -> dict[str, np.ndarray]:
     step = np.arange(n, dtype=np.float32)[:, None]
     return {"the current action": actions,
             f"the last {WINDOW} actions": window,
-            # the assistant acts in the same step as the human: it has seen a_{t-16} .. a_{t-1},
-            # never a_t (assistant.partner_window=16), so this is the fair comparison with its estimate
-            f"the {WINDOW} actions before this step (what the assistant observes)":
-                np.vstack([np.zeros((1, window.shape[1]), np.float32), window[:-1]]),
+            f"the {WINDOW} actions before this step (what the assistant observes)": previous_actions(actions),
             f"the last {WINDOW} actions + episode mean, min, step": np.hstack([window, mean_so_far, min_so_far, step])}
 
 

@@ -37,13 +37,7 @@ from d2a_core.pipelines.evaluate import ENV_SECTIONS, panel_specs, run_specs
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
 from d2a_core.training.humans import load_human, load_track_bundle
-
-
-def previous_actions(actions: np.ndarray, window: int) -> np.ndarray:
-    """Per step t of one episode (T, 2): the human's actions t-window .. t-1, zero before the
-    start (what the assistant observes with `assistant.partner_window` = window)."""
-    padded = np.vstack([np.zeros((window, 2), np.float32), actions])
-    return np.stack([padded[t:t + window].ravel() for t in range(len(actions))])
+from intent_from_human_actions import previous_actions  # the sibling script (this folder is on sys.path)
 
 
 def drive(store: Store, ref: str, episodes: int) -> tuple[list[dict], list, list[dict], int]:
