@@ -90,3 +90,29 @@ def test_errors_for_inconsistent_steps_and_too_little_data():
         replay.add({"obs": np.zeros((2, 3))})
     with pytest.raises(UsageError, match="obs"):
         replay.add({"obs": np.zeros((2, 4)), "is_first": np.ones(2, bool)})
+
+
+def test_recent_windows_lie_in_the_newest_steps_and_a_zero_fraction_samples_as_before():
+    uniform, mixed, zero = (SequenceReplay(capacity=3 * 400, seed=4) for _ in range(3))
+    for replay in (uniform, mixed, zero):
+        _fill(replay, 300)
+    plain = uniform.sample(32, 10)
+    unchanged = zero.sample(32, 10, recent_fraction=0.0, recent_steps=60)
+    assert all(np.array_equal(plain[k], unchanged[k]) for k in plain)
+    batch = mixed.sample(32, 10, recent_fraction=0.5, recent_steps=3 * 40)  # newest 40 steps per stream
+    newest = 299
+    assert (batch["counter"][:16] >= newest - 39).all() and (batch["counter"][:16] <= newest).all()
+    assert (np.diff(batch["counter"], axis=1) == 1).all()
+    # the other half is uniform: over 16 windows of 300 steps some start well before the recent span
+    assert (batch["counter"][16:, 0] < newest - 39).any()
+    # a recent span shorter than a window still yields whole windows, the newest ones
+    short = mixed.sample(8, 10, recent_fraction=1.0, recent_steps=3)
+    assert (short["counter"][:, -1] == newest).all()
+
+
+def test_the_recency_keys_stay_out_of_run_records_at_their_defaults():
+    from d2a_core.agents.dreamer.config import DreamerConfig
+    from d2a_core.config.section import record
+
+    assert "replay_recent_fraction" not in record(DreamerConfig())
+    assert record(DreamerConfig(replay_recent_fraction=0.5))["replay_recent_fraction"] == 0.5

@@ -224,7 +224,9 @@ class DreamerAgent:
         started = time.perf_counter()
         batch = {
             key: torch.as_tensor(value, device=self.device)
-            for key, value in self.replay.sample(c.batch_size, c.batch_length).items()
+            for key, value in self.replay.sample(
+                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps
+            ).items()
         }
         with self._autocast():
             wm_out = self.world_model.loss(batch, self.train_generator)

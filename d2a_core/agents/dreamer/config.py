@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from d2a_core.config.section import Section
 
@@ -25,10 +25,8 @@ class HeadConfig(Section):
     omit_at_default = {"lr": None}
 
 
-class DreamerConfig(BaseModel):
+class DreamerConfig(Section):
     """Every tunable constant of the agent (networks, losses, optimisers, replay, schedule)."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
     # --- networks
     units: int = Field(512, gt=0, description="width of every MLP layer (encoder, decoder, heads, actor, critic)")
@@ -93,12 +91,23 @@ class DreamerConfig(BaseModel):
     train_ratio: float = Field(512.0, gt=0, description="replayed steps per environment step")
     replay_capacity: int = Field(1_000_000, gt=0, description="environment steps kept (over all env streams)")
     prefill_steps: int = Field(1024, ge=0, description="environment steps collected before the first update")
+    # DreamerV3 samples replay uniformly. A learner whose own data drifts (an assistant whose
+    # partner sees its actions, an intent head read on the current assistant's episodes) may
+    # need the newest episodes weighted up; 0 keeps uniform sampling exactly.
+    replay_recent_fraction: float = Field(
+        0.0, ge=0, le=1, description="share of each batch's windows drawn from the newest replay_recent_steps"
+    )
+    replay_recent_steps: int = Field(
+        5000, gt=0, description="environment steps (over all env streams) that count as recent"
+    )
 
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
     precision: Literal["float32", "bfloat16"] = Field(
         "float32", description="matmul precision in training (bfloat16: autocast, weights and optimiser stay float32)"
     )
+
+    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:

@@ -1,4 +1,4 @@
-"""Uniform replay of fixed-length sequences from per-environment numpy ring buffers.
+"""Uniform (optionally recency-weighted) replay of fixed-length sequences from per-environment numpy ring buffers.
 
 Each parallel environment writes its own stream of steps; episodes follow one another in a
 stream and each starts with `is_first = True`, so a sampled window may span an episode
@@ -66,8 +66,12 @@ class SequenceReplay:
         """Whether a window of `length` steps exists."""
         return self.num_streams > 0 and self.filled >= length
 
-    def sample(self, batch_size: int, length: int) -> dict[str, np.ndarray]:
-        """`batch_size` windows of `length` consecutive steps, uniformly over streams and starts.
+    def sample(
+        self, batch_size: int, length: int, recent_fraction: float = 0.0, recent_steps: int = 0
+    ) -> dict[str, np.ndarray]:
+        """`batch_size` windows of `length` consecutive steps, uniformly over streams and starts,
+        except that the first round(batch_size * recent_fraction) windows lie within the newest
+        `recent_steps` steps (over all streams; at least one window's length per stream).
         `is_first` is set at each window's first step: the model starts every window afresh."""
         if not self.can_sample(length):
             raise TrainingError(
@@ -75,6 +79,10 @@ class SequenceReplay:
             )
         streams = self.rng.integers(0, self.num_streams, batch_size)
         starts = self.rng.integers(0, self.filled - length + 1, batch_size)
+        recent = int(round(batch_size * recent_fraction))
+        if recent:  # drawn after the uniform ones, so a fraction of 0 samples exactly as before
+            per_stream = max(length, recent_steps // self.num_streams)
+            starts[:recent] = self.rng.integers(max(0, self.filled - per_stream), self.filled - length + 1, recent)
         oldest = self.position if self.filled == self.stream_capacity else 0
         index = (oldest + starts[:, None] + np.arange(length)[None]) % self.stream_capacity
         batch = {key: value[streams[:, None], index] for key, value in self.data.items()}
