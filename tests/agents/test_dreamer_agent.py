@@ -291,3 +291,27 @@ def test_config_validation():
         DreamerConfig(unknown_key=1)
     with pytest.raises(ValueError):
         DreamerConfig(extra_heads=[HeadConfig(name="a", kind="categorical")] * 2)
+
+
+def test_recency_keys_reach_the_replay_sampler(make_agent, fill_random):
+    """With every window recent and a recent span of one window, each update trains on the newest
+    steps of the streams; without the keys, on windows spread over the whole replay."""
+    steps, length = 60, 8
+    first_steps = {}
+    for fraction in (0.0, 1.0):
+        agent = make_agent(replay_recent_fraction=fraction, replay_recent_steps=1, batch_length=length)
+        counter = iter(range(steps))
+        fill_random(agent, steps, step=lambda transition: np.full(2, next(counter)))
+        sample, seen = agent.replay.sample, []
+
+        def spy(*args):
+            batch = sample(*args)
+            seen.append(batch["step"][:, 0].copy())
+            return batch
+
+        agent.replay.sample = spy
+        for _ in range(3):
+            agent.train_step()
+        first_steps[fraction] = np.concatenate(seen)
+    assert (first_steps[1.0] == steps - length).all()
+    assert (first_steps[0.0] < steps - length).any()
