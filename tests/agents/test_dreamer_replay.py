@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.agents.dreamer.replay import SequenceReplay
+from d2a_core.config.section import record
 from d2a_core.errors import TrainingError, UsageError
 
 
@@ -111,8 +113,36 @@ def test_recent_windows_lie_in_the_newest_steps_and_a_zero_fraction_samples_as_b
 
 
 def test_the_recency_keys_stay_out_of_run_records_at_their_defaults():
-    from d2a_core.agents.dreamer.config import DreamerConfig
-    from d2a_core.config.section import record
-
     assert "replay_recent_fraction" not in record(DreamerConfig())
     assert record(DreamerConfig(replay_recent_fraction=0.5))["replay_recent_fraction"] == 0.5
+
+
+def test_terminal_windows_hold_a_terminal_step_anywhere_in_the_window():
+    def fill(replay):
+        rng = np.random.default_rng(1)
+        for t in range(500):  # wraps the 3 x 150 ring; terminals at every 37th step of stream 1 only
+            replay.add({"obs": rng.normal(size=(3, 2)).astype(np.float32), "counter": np.full(3, t),
+                        "env": np.arange(3), "is_terminal": (np.arange(3) == 1) & (t % 37 == 36)})
+
+    plain, zero, ending = (SequenceReplay(capacity=3 * 150, seed=2) for _ in range(3))
+    for replay in (plain, zero, ending):
+        fill(replay)
+    reference = plain.sample(40, 12)
+    assert all(np.array_equal(reference[k], v) for k, v in zero.sample(40, 12, terminal_fraction=0.0).items())
+    batch = ending.sample(40, 12, terminal_fraction=0.25)
+    assert batch["is_terminal"][:10].any(axis=1).all() and (batch["env"][:10] == 1).all()
+    assert (np.diff(batch["counter"], axis=1) == 1).all()  # still contiguous, never across the write position
+    assert batch["counter"].min() >= 500 - 150  # only steps still in the ring
+    places = np.argmax(batch["is_terminal"][:10], axis=1)
+    assert len(set(places.tolist())) > 3  # the terminal step is not always at the same place
+    # no terminal stored yet: uniform windows, no error
+    empty = SequenceReplay(capacity=100, seed=0)
+    for _ in range(20):
+        empty.add({"obs": np.zeros((1, 2), np.float32), "is_terminal": np.zeros(1, bool)})
+    assert empty.sample(4, 5, terminal_fraction=1.0)["obs"].shape == (4, 5, 2)
+
+
+def test_replay_fractions_are_validated():
+    with pytest.raises(ValueError, match="must not exceed 1"):
+        DreamerConfig(replay_recent_fraction=0.6, replay_terminal_fraction=0.5)
+    assert "replay_terminal_fraction" not in record(DreamerConfig())

@@ -225,7 +225,8 @@ class DreamerAgent:
         batch = {
             key: torch.as_tensor(value, device=self.device)
             for key, value in self.replay.sample(
-                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps
+                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
+                c.replay_terminal_fraction,
             ).items()
         }
         with self._autocast():

@@ -100,6 +100,11 @@ class DreamerConfig(Section):
     replay_recent_steps: int = Field(
         5000, gt=0, description="environment steps (over all env streams) that count as recent"
     )
+    # Crashes and finishes are rare steps that carry the largest rewards and the only
+    # continue = 0 targets; uniform windows hold few of them (`wm/terminal_steps` in the curve).
+    replay_terminal_fraction: float = Field(
+        0.0, ge=0, le=1, description="share of each batch's windows that hold a stored terminal step"
+    )
 
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
@@ -107,7 +112,7 @@ class DreamerConfig(Section):
         "float32", description="matmul precision in training (bfloat16: autocast, weights and optimiser stay float32)"
     )
 
-    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000}
+    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:
@@ -118,6 +123,8 @@ class DreamerConfig(Section):
         names = [head.name for head in self.extra_heads]
         if len(names) != len(set(names)):
             raise ValueError(f"extra_heads names must be unique, got {names}")
+        if self.replay_recent_fraction + self.replay_terminal_fraction > 1:
+            raise ValueError("replay_recent_fraction + replay_terminal_fraction must not exceed 1")
         if self.bins % 2 == 0:
             raise ValueError("bins must be odd so that zero is a bin centre")
         return self
