@@ -112,8 +112,8 @@ def test_recent_windows_lie_in_the_newest_steps_and_a_zero_fraction_samples_as_b
     assert (short["counter"][:, -1] == newest).all()
 
 
-def test_the_recency_keys_stay_out_of_run_records_at_their_defaults():
-    assert "replay_recent_fraction" not in record(DreamerConfig())
+def test_the_replay_keys_stay_out_of_run_records_at_their_defaults():
+    assert not {"replay_recent_fraction", "replay_recent_steps", "replay_terminal_fraction"} & set(record(DreamerConfig()))
     assert record(DreamerConfig(replay_recent_fraction=0.5))["replay_recent_fraction"] == 0.5
 
 
@@ -145,4 +145,3 @@ def test_terminal_windows_hold_a_terminal_step_anywhere_in_the_window():
 def test_replay_fractions_are_validated():
     with pytest.raises(ValueError, match="must not exceed 1"):
         DreamerConfig(replay_recent_fraction=0.6, replay_terminal_fraction=0.5)
-    assert "replay_terminal_fraction" not in record(DreamerConfig())

@@ -1,4 +1,5 @@
-"""Uniform (optionally recency-weighted) replay of fixed-length sequences from per-environment numpy ring buffers.
+"""Replay of fixed-length sequences from per-environment numpy ring buffers: uniform, with
+optional shares of windows from the newest steps or on stored terminal steps.
 
 Each parallel environment writes its own stream of steps; episodes follow one another in a
 stream and each starts with `is_first = True`, so a sampled window may span an episode
@@ -99,16 +100,18 @@ class SequenceReplay:
 
     def _place_terminals(self, streams: np.ndarray, starts: np.ndarray, rows: slice, length: int, oldest: int) -> None:
         """Move the windows of `rows` (in place) onto stored terminal steps drawn uniformly."""
-        logical = (np.arange(self.stream_capacity) - oldest) % self.stream_capacity  # age order of each slot
-        stream_of, slot = np.nonzero(self.data["is_terminal"] & (logical < self.filled)[None])
-        if not len(slot):
+        stream_of, slot = np.nonzero(self.data["is_terminal"])
+        age = (slot - oldest) % self.stream_capacity  # position from the oldest stored step
+        stored = age < self.filled  # slots not yet written hold zeros, never True, but be exact
+        stream_of, age = stream_of[stored], age[stored]
+        if not len(age):
             return
         count = rows.stop - rows.start
-        pick = self.rng.integers(0, len(slot), count)
+        pick = self.rng.integers(0, len(age), count)
         place = self.rng.integers(0, length, count)  # where in its window the terminal step falls
         streams[rows] = stream_of[pick]
         # clipping at either end of the stream keeps the terminal step inside the window
-        starts[rows] = np.clip(logical[slot[pick]] - place, 0, self.filled - length)
+        starts[rows] = np.clip(age[pick] - place, 0, self.filled - length)
 
     # --- persistence
 
