@@ -104,6 +104,11 @@ def test_intent_reads_reaches_the_head_only_when_set_and_only_for_a_dreamer_inte
     for name in ("dreamer", "no-rssm"):
         with pytest.raises(UsageError, match="intent_reads"):
             get_method(name).configure(wide, PAIR)
+    # the partner window: the head reads the observation's last 2 K columns, the partner slot and window
+    window = base.model_copy(update={"assistant": base.assistant.model_copy(
+        update={"intent_reads": "partner_window", "partner_window": 16})})
+    options = get_method("dream2assist").configure(window, PAIR).dreamer.extra_heads[0].options
+    assert (options["reads"], options["tail"]) == ("observation_tail", 32)
 
 
 def test_intent_lr_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_head():

@@ -65,10 +65,12 @@ class AssistantConfig(Section):
         1, ge=1, le=64,
         description="the human's last K actions in the assistant's observation (1: the partner slot alone, the paper's)",
     )
-    intent_reads: Literal["latent", "latent+embedding"] = Field(
+    intent_reads: Literal["latent", "latent+embedding", "partner_window"] = Field(
         "latent",
-        description="what the intent head reads: the model state (the paper's p(y_hat | s)), or the model state plus "
-                    "the encoder's embedding of the current observation (the actor still sees only the model state)",
+        description="what the intent head reads: the model state (the paper's p(y_hat | s)); the model state plus "
+                    "the encoder's embedding of the current observation; or only the human's actions in the "
+                    "observation (the partner slot and the partner_window - 1 before it), not the model state. "
+                    "The actor sees only the model state in every case",
     )
 
     intent_lr: Optional[float] = Field(

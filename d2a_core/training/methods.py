@@ -102,7 +102,12 @@ class Method:
             from d2a_core.agents.dreamer.config import HeadConfig  # pydantic only, no torch
 
             options: dict[str, Any] = {"field": INTENT_HEAD_NAME, "intents": list(intents)}
-            if assistant.intent_reads != "latent":  # named only when set, so older runs keep their keys
+            if assistant.intent_reads == "partner_window":
+                from d2a_core.training.partner_window import PARTNER_SLOT  # numpy and gymnasium, no torch
+
+                # The assistant's observation ends with the partner slot and the window after it.
+                options.update(reads="observation_tail", tail=PARTNER_SLOT * assistant.partner_window)
+            elif assistant.intent_reads != "latent":  # named only when set, so older runs keep their keys
                 options["reads"] = assistant.intent_reads
             head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options,
                               lr=assistant.intent_lr)

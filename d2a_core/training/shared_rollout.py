@@ -74,7 +74,9 @@ def _rows(state: PolicyState, index: torch.Tensor) -> PolicyState:
     latent = state.latent
     probs = None if latent.probs is None else latent.probs[index]
     embedding = None if state.embedding is None else state.embedding[index]
-    return PolicyState(Latent(latent.h[index], latent.index[index], probs), state.action[index], embedding)
+    observation = None if state.observation is None else state.observation[index]
+    return PolicyState(Latent(latent.h[index], latent.index[index], probs), state.action[index], embedding,
+                       observation)
 
 
 def _put_rows(state: PolicyState, index: torch.Tensor, rows: PolicyState) -> None:
@@ -85,6 +87,8 @@ def _put_rows(state: PolicyState, index: torch.Tensor, rows: PolicyState) -> Non
     state.action[index] = rows.action
     if state.embedding is not None and rows.embedding is not None:
         state.embedding[index] = rows.embedding
+    if state.observation is not None and rows.observation is not None:
+        state.observation[index] = rows.observation
 
 
 class HumanDrivers:

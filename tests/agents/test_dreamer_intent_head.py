@@ -130,6 +130,55 @@ def test_a_head_reading_the_embedding_uses_it_and_gets_it_while_acting():
                       "embedding": np.zeros((ENVS, 3), np.float32)})
 
 
+def test_a_head_reading_the_partner_window_sees_only_the_observations_last_columns():
+    """`assistant.intent_reads=partner_window`: the head is a classifier on the observation's last
+    2 K columns (the partner slot and the K - 1 actions before it); it learns a label carried
+    there alone, is blind to the model state and to every other column, and reads the observation
+    the acting state keeps (through the blended action too)."""
+    torch.manual_seed(0)
+    agent = _smoke_agent(reads="partner_window", assistant=("assistant.partner_window=2",), model_lr=1e-3)
+    head = agent.world_model.extra_heads["intent"]
+    assert head.reads_observation and head.tail == 4 and not head.reads_embedding
+    rng = np.random.default_rng(8)
+
+    def step_with_label_in_the_tail(episodes: _LabelledEpisodes) -> dict[str, np.ndarray]:
+        step = episodes.step()
+        obs = rng.normal(size=(ENVS, OBS)).astype(np.float32)  # column 0 no longer shows the label
+        obs[:, -3] = (2 * episodes.intent - 1) * (0.3 + np.abs(obs[:, -3]))  # inside the last 4 columns
+        return {**step, "obs": obs}
+
+    episodes = _LabelledEpisodes(seed=9)
+    for _ in range(10 * EPISODE):
+        agent.observe({**step_with_label_in_the_tail(episodes), "intent": episodes.intent.copy(),
+                       "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32)})
+    accuracy = np.array([agent.train_step()["wm/intent_accuracy"] for _ in range(200)])
+    assert accuracy[:5].mean() < 0.75 and accuracy[-20:].mean() > 0.9
+
+    fresh = _LabelledEpisodes(seed=10)
+    step = step_with_label_in_the_tail(fresh)
+    _, state = agent.policy(step, None, explore=False)
+    assert state.observation is not None and state.embedding is None
+    probs = agent.predict(state)["intent"]
+    assert (probs.argmax(-1).numpy() == fresh.intent).mean() >= 0.75
+    # Blind to the model state and to the columns before the tail; the tail moves it.
+    other = _smoke_agent(reads="partner_window", assistant=("assistant.partner_window=2",))
+    _, other_state = other.policy(step, None, explore=True)
+    head_only = head.predict(other_state.latent, None, state.observation)
+    torch.testing.assert_close(head_only, probs)
+    shuffled = state.observation.clone()
+    shuffled[:, :1] = torch.randn(ENVS, 1)
+    torch.testing.assert_close(head.predict(state.latent, None, shuffled), probs)
+    shuffled[:, -3] = -shuffled[:, -3]
+    assert not torch.allclose(head.predict(state.latent, None, shuffled), probs)
+    with pytest.raises(TrainingError, match="reads the observation"):
+        head.predict(state.latent)
+    kept = agent.with_action(state, np.zeros((ENVS, 2), np.float32))
+    np.testing.assert_allclose(agent.intent_probs(kept), probs.numpy(), rtol=1e-6)
+    # no other reading keeps the observation
+    _, plain_state = _smoke_agent().policy(step, None, explore=False)
+    assert plain_state.observation is None
+
+
 def test_the_intent_heads_own_learning_rate_moves_its_weights_and_only_them_faster():
     """`assistant.intent_lr`: the head's weights get their own optimiser group at that rate; every
     other world-model weight stays at model_lr, each weight in exactly one group."""

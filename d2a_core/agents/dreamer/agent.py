@@ -48,8 +48,10 @@ class PolicyState:
 
     latent: Latent
     action: Tensor
-    # the encoder's embedding of the last observation, kept only when a head reads it
+    # the encoder's embedding of the last observation, and that observation, each kept only when
+    # a head reads it
     embedding: Tensor | None = None
+    observation: Tensor | None = None
 
 
 class DreamerAgent:
@@ -149,7 +151,8 @@ class DreamerAgent:
             else:
                 action = actor.mode(feat)
         kept = embedding.float() if self.world_model.heads_read_embedding else None
-        new_state = PolicyState(feat, action.float(), kept)
+        kept_obs = obs if self.world_model.heads_read_observation else None
+        new_state = PolicyState(feat, action.float(), kept, kept_obs)
         return self._to_env_action(new_state.action), new_state
 
     @torch.no_grad()
@@ -159,7 +162,7 @@ class DreamerAgent:
         heads = self.world_model.extra_heads
         if "intent" not in heads:
             return None
-        return heads["intent"].predict(state.latent, state.embedding).float().cpu().numpy()
+        return heads["intent"].predict(state.latent, state.embedding, state.observation).float().cpu().numpy()
 
     def features(self, state: PolicyState) -> np.ndarray:
         """The model state's deterministic part h (N, deter): what the report's t-SNE of
@@ -169,7 +172,7 @@ class DreamerAgent:
     def with_action(self, state: PolicyState, env_actions: np.ndarray) -> PolicyState:
         """The same state with another action taken (e.g. a blended human+assistant action), so
         that the next `policy` call conditions on what was really executed."""
-        return PolicyState(state.latent, self._to_internal_action(env_actions), state.embedding)
+        return PolicyState(state.latent, self._to_internal_action(env_actions), state.embedding, state.observation)
 
     @torch.no_grad()
     def predict(self, state: PolicyState) -> dict[str, Tensor]:
@@ -177,7 +180,7 @@ class DreamerAgent:
         extra head (e.g. an intent classifier's probabilities)."""
         latent = state.latent
         out = {"reward": self.world_model.reward(latent), "continue": self.world_model.continue_prob(latent)}
-        out.update(self.world_model.predict_extra(latent, state.embedding))
+        out.update(self.world_model.predict_extra(latent, state.embedding, state.observation))
         return out
 
     # --- data

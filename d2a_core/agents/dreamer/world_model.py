@@ -62,8 +62,10 @@ class WorldModel(nn.Module):
         self.continue_head = latent_mlp(c, 1)
         self.extra_heads = nn.ModuleDict({spec.name: build_head(spec, c) for spec in c.extra_heads})
         self.head_weights = {spec.name: spec.weight for spec in c.extra_heads}
-        # fixed at construction: whether acting keeps, and the loss hands out, the embedding
+        # fixed at construction: whether acting keeps, and the loss hands out, the embedding; whether
+        # acting keeps the raw observation (the loss's batch has it)
         self.heads_read_embedding = any(head.reads_embedding for head in self.extra_heads.values())
+        self.heads_read_observation = any(head.reads_observation for head in self.extra_heads.values())
         self.twohot = TwoHot(c.bins, c.bin_range)
 
     def _apply(self, fn, recurse=True):  # keep the two-hot bins on the module's device
@@ -83,10 +85,11 @@ class WorldModel(nn.Module):
         """Predicted probability that the episode continues after state `latent`."""
         return torch.sigmoid(self.continue_head(latent).squeeze(-1).float())
 
-    def predict_extra(self, latent: Latent, embedding: Tensor | None = None) -> dict[str, Tensor]:
-        """Run-time predictions of every extra head (`embedding`: of the observation `latent`
-        was inferred from, for the heads that read it)."""
-        return {name: head.predict(latent, embedding) for name, head in self.extra_heads.items()}
+    def predict_extra(self, latent: Latent, embedding: Tensor | None = None,
+                      observation: Tensor | None = None) -> dict[str, Tensor]:
+        """Run-time predictions of every extra head (`embedding`, `observation`: of the
+        observation `latent` was inferred from, and that observation, for the heads that read them)."""
+        return {name: head.predict(latent, embedding, observation) for name, head in self.extra_heads.items()}
 
     def loss(self, batch: Mapping[str, Tensor], generator: torch.Generator | None) -> WorldModelOutput:
         """World-model loss of a batch of sequences (B, T, ...): obs, action (taken at each
