@@ -1,0 +1,51 @@
+"""The training panel of assistant runs as a markdown table: per checkpoint, the intent estimate's
+per-step F1, what assistance changed for the weak humans and the experts of each intent (the
+issue-13 criterion), and the estimate's accuracy per panel group. The rows docs/results.md
+reports for every issue-13 lever.
+
+    python docs/analysis/panel_table.py STORE RUN_ID [RUN_ID ...]
+
+RUN_ID: `assistant-run` artifacts (the `run_id` of `d2a train-assistant --json`) or their aliases.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from d2a_core.artifacts import Store
+
+HEADER = ("| run, env step | intent F1 | pass weak: progress gain m, finished ahead | pass expert: progress ratio, "
+          "finished ahead | stay weak: progress gain m, never ahead | stay expert: ratio, never ahead | accuracy per "
+          "group: pass weak / expert / stay weak / expert |\n|---|---|---|---|---|---|---|")
+GROUPS = ("pass/weak", "pass/expert", "stay/weak", "stay/expert")
+
+
+def _goal(summary: dict, group: str) -> str:
+    name = "finished_ahead" if group.startswith("pass") else "finished_never_ahead"
+    return f"{summary[f'{group}/{name}_unassisted']:.2f} → {summary[f'{group}/{name}_assisted']:.2f}"
+
+
+def row(label: str, summary: dict) -> str:
+    accuracy = " / ".join(f"{summary.get(f'{group}/intent_accuracy', float('nan')):.2f}" for group in GROUPS)
+    return (f"| {label} | {summary['intent_f1']:.2f} "
+            f"| {summary['pass/weak/progress_gain']:+.0f}, {_goal(summary, 'pass/weak')} "
+            f"| {summary['pass/expert/progress_ratio']:.2f}, {_goal(summary, 'pass/expert')} "
+            f"| {summary['stay/weak/progress_gain']:+.0f}, {_goal(summary, 'stay/weak')} "
+            f"| {summary['stay/expert/progress_ratio']:.2f}, {_goal(summary, 'stay/expert')} | {accuracy} |")
+
+
+def main(store_path: str, refs: list[str]) -> None:
+    store = Store(store_path)
+    print(HEADER)
+    for ref in refs:
+        run = store.get(ref)
+        checkpoints = [store.get(i) for i in run.inputs if store.get(i).kind == "assistant"]
+        for art in sorted(checkpoints, key=lambda a: a.labels["env_step"]):
+            summary = json.loads(store.path(art.id, "eval.json").read_text())["summary"]
+            step = art.labels["env_step"]
+            print(row(f"{art.labels.get('method', '')} seed {art.seed} {step // 1000}k `{art.id}`", summary))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], sys.argv[2:])
