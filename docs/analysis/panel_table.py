@@ -40,11 +40,11 @@ def main(store_path: str, refs: list[str]) -> None:
     print(HEADER)
     for ref in refs:
         run = store.get(ref)
-        checkpoints = [store.get(i) for i in run.inputs if store.get(i).kind == "assistant"]
+        checkpoints = [art for art in map(store.get, run.inputs) if art.kind == "assistant"]
         for art in sorted(checkpoints, key=lambda a: a.labels["env_step"]):
             summary = json.loads(store.path(art.id, "eval.json").read_text())["summary"]
-            step = art.labels["env_step"]
-            print(row(f"{art.labels.get('method', '')} seed {art.seed} {step // 1000}k `{art.id}`", summary))
+            label = f"{art.labels.get('method', '')} seed {art.seed} {art.labels['env_step'] // 1000}k `{art.id[:12]}`"
+            print(row(label, summary))
 
 
 if __name__ == "__main__":
