@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.table import Column, Table
@@ -13,7 +13,6 @@ from d2a_cli.common import (
     BaselineOpt,
     EnvsOpt,
     HumansOpt,
-    MainMethodOpt,
     PairOpt,
     RunContext,
     TrackOpt,
@@ -28,9 +27,14 @@ from d2a_core.evaluation.criteria import CRITERION_METRIC
 def eval_assistants(
     track: TrackOpt,
     pair: PairOpt,
-    method: MainMethodOpt = "dream2assist",
+    method: Annotated[Optional[str], typer.Option(
+        "--method", help="The main method [default: dream2assist].", show_default=False)] = None,
     baseline: BaselineOpt = None,
     seeds: AssistantSeedsOpt = None,
+    assistant: Annotated[Optional[list[str]], typer.Option(
+        "--assistant", help="Evaluate this assistant artifact (id, prefix or alias; repeatable), e.g. a "
+                            "checkpoint along a run, instead of the final assistants of --method/--seed.",
+        show_default=False)] = None,
     humans: HumansOpt = None,
     episodes: Annotated[int, typer.Option("--episodes", min=1, help="Paired episodes per human.")] = 20,
     eval_seed: Annotated[int, typer.Option("--eval-seed", help="Seed of the evaluation episodes' env seeds.")] = 0,
@@ -44,7 +48,8 @@ def eval_assistants(
     from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
-                      episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=print_stage)
+                      episodes=episodes, eval_seed=eval_seed, n_envs=envs, device=run.device, progress=print_stage,
+                      assistants=assistant)
 
     def render(r: dict[str, Any]) -> None:
         # the paper's Table 1 transposed (one column per assistant, so it fits a terminal): the
@@ -54,7 +59,7 @@ def eval_assistants(
                 shown = [e for e in r["evaluations"] if e["intents"][intent].get(group) is not None]
                 if not shown:
                     continue
-                table = Table("", *(Column(f"{e['method']} seed {e['seed']}", no_wrap=True) for e in shown),
+                table = Table("", *(Column(_title(e), no_wrap=True) for e in shown),
                               title=f"{intent}, {group.replace('_', '-')} humans: change with assistance",
                               caption="Δ: assisted - unassisted, mean ± std over humans")
                 blocks = [e["intents"][intent][group] for e in shown]
@@ -70,6 +75,11 @@ def eval_assistants(
 
 _SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate",
           "intervention": "intervention", "mean_speed_m_s": "mean speed (m/s)"}
+
+def _title(e: dict[str, Any]) -> str:
+    step = e.get("assistant_env_step")
+    return f"{e['method']} seed {e['seed']}" + (f" ({step // 1000}k)" if step else "")
+
 
 def _criterion_change(block: dict[str, Any], criterion: str) -> str:
     before, change = block.get(f"{criterion}_unassisted"), block.get(criterion)

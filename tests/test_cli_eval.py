@@ -235,3 +235,31 @@ def test_held_out_means_populations_the_assistant_did_not_train_with(cli, eval_s
     e = res.json["evaluations"][0]
     assert e["held_out"] is True
     assert store.resolve(f"eval/straightaway/pass-stay/dreamer/seed0/humans-{own[0][:8]}-{stay1[:8]}") == e["id"]
+
+
+def test_eval_of_a_named_checkpoint_keeps_the_final_alias(cli, eval_store, trained_assistants):
+    """`--assistant` evaluates any assistant artifact (here the run's first checkpoint, not its
+    final one) under its own alias, leaving `eval/.../seed0` to the final assistant."""
+    store = Store(eval_store)
+    run = next(a for a in trained_assistants[1]["assistants"] if a["method"] == "dream2assist")
+    first = run["checkpoints"][0]
+    assert first["id"] != store.resolve("assistants/straightaway/pass-stay/dream2assist/seed0")
+    before = store.refs().get("eval/straightaway/pass-stay/dream2assist/seed0")
+    own = [a for p in run["populations"] for a in ("--humans", p)]  # other tests move the humans aliases
+    res = cli("eval", *PAIR, "--assistant", first["id"][:12], *own, "--episodes", "1", "--json", store=eval_store)
+    assert res.code == 0, res.stderr
+    (e,) = res.json["evaluations"]
+    assert (e["method"], e["seed"], e["assistant"]) == ("dream2assist", 0, first["id"])
+    assert e["assistant_env_step"] == first["env_step"]
+    assert store.resolve(f"eval/straightaway/pass-stay/dream2assist/seed0/checkpoint-{first['id'][:12]}") == e["id"]
+    assert store.refs().get("eval/straightaway/pass-stay/dream2assist/seed0") == before
+    # the final one by its alias is the default evaluation's assistant
+    final = cli("eval", *PAIR, "--assistant", "assistants/straightaway/pass-stay/dream2assist/seed0", *own,
+                "--episodes", "1", "--json", store=eval_store)
+    assert final.code == 0, final.stderr
+    assert store.resolve("eval/straightaway/pass-stay/dream2assist/seed0") == final.json["evaluations"][0]["id"]
+    # usage errors: mixed with --seed, not an assistant
+    mixed = cli("eval", *PAIR, "--assistant", first["id"], "--seed", "0", "--json", store=eval_store)
+    assert mixed.code == 2 and "--assistant" in mixed.json["error"]["message"]
+    pop = cli("eval", *PAIR, "--assistant", "humans/straightaway/pass", "--json", store=eval_store)
+    assert pop.code == 2 and "not an assistant" in pop.json["error"]["message"]

@@ -13,6 +13,9 @@ and the per-step log of the assisted episodes (the inferred intent's probability
 intent at every step, both actions and the reward terms), with inputs: the assistant, the humans
 and the track. Alias `eval/<track>/<pair>/<method>/seed<k>` (with `/humans-<ids>` appended when
 the humans come from populations the assistant was not trained with: `held_out` in the result).
+By default the assistants are the final ones (`assistants/<track>/<pair>/<method>/seed<k>`);
+`assistants=` names any assistant artifacts instead, e.g. checkpoints along a run, whose
+evaluations get `/checkpoint-<id>` in their alias so they never take the final's.
 An evaluation is deterministic, so an identical request
 returns the stored artifact.
 
@@ -85,6 +88,23 @@ def find_assistants(store: Store, track: str, pair: str, names: Sequence[str],
                 raise NotFoundError(f"no assistant {alias!r} in store {store.root}; make it with: "
                                     f"d2a train-assistant --track {track} --pair {pair} --method {name} "
                                     f"--seed {seed}") from None
+    return out
+
+
+def named_assistants(store: Store, track: str, pair: str, refs: Sequence[str]) -> list[tuple[str, int, str]]:
+    """(method, seed, assistant id) of assistant artifacts named by id, prefix or alias (e.g. a
+    checkpoint along a run, not only its final one); method and seed come from their labels."""
+    out = []
+    for ref in refs:
+        art = store.get(ref)
+        if art.kind != "assistant":
+            raise UsageError(f"--assistant {ref!r} is a {art.kind} artifact, not an assistant")
+        if (art.labels.get("track"), art.labels.get("pair")) != (track, pair):
+            raise UsageError(f"assistant {art.id[:12]} was trained on {art.labels.get('track')} "
+                             f"{art.labels.get('pair')}, not {track} {pair}")
+        out.append((art.labels["method"], int(art.labels["seed"]), art.id))
+    if len({a for _, _, a in out}) != len(out):
+        raise UsageError("an assistant is named twice")
     return out
 
 
@@ -194,16 +214,19 @@ def _steps_npz(rows: Sequence[dict], logs: Sequence[dict]) -> bytes:
     return buffer.getvalue()
 
 
-def evaluate(store: Store, track_ref: str, pair: str, method: str = "dream2assist", baselines: Sequence[str] = (),
+def evaluate(store: Store, track_ref: str, pair: str, method: str | None = None, baselines: Sequence[str] = (),
              seeds: Sequence[int] | None = None, humans: Sequence[str] | None = None, episodes: int = 20,
              eval_seed: int = 0, n_envs: int = 8, device: str = "cpu",
-             progress: ProgressFn | None = None) -> dict[str, Any]:
-    """Evaluate `method` and `baselines` (every stored seed unless `seeds`); see the module docstring."""
+             progress: ProgressFn | None = None, assistants: Sequence[str] | None = None) -> dict[str, Any]:
+    """Evaluate `method` (default dream2assist) and `baselines`, every stored seed unless `seeds`;
+    or, instead, the assistant artifacts named in `assistants`. See the module docstring."""
     if episodes < 1:
         raise UsageError(f"--episodes must be at least 1, got {episodes}")
+    if assistants and (method or baselines or seeds):
+        raise UsageError("--assistant names the assistants itself; drop --method, --baseline and --seed")
     with store.lease():
-        return _evaluate(store, track_ref, pair, [method, *baselines], seeds, humans, episodes, eval_seed, n_envs,
-                         device, progress)
+        return _evaluate(store, track_ref, pair, [method or "dream2assist", *baselines], seeds, humans, episodes,
+                         eval_seed, n_envs, device, progress, assistants)
 
 
 class _Session:
@@ -274,13 +297,14 @@ class _Session:
         assistant, _, trained_on, window = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
         if tuple(trained_on) != tuple(self.intents):
             raise UsageError(f"assistant {art_id[:12]} was trained on {'-'.join(trained_on)}, not {self.pair}")
-        assisted, step_logs = self.run(f"{name}-seed{seed}", assistant, {
+        assisted, step_logs = self.run(f"{name}-seed{seed}-{art_id[:12]}", assistant, {
             "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id},
             partner_window=window)
         latents = _latents_npz(assisted)
         # held out: humans of populations the assistant was not trained with (its inputs say which)
         held_out = not set(self.population_ids) <= set(store.get(art_id).inputs)
-        result = {"method": name, "seed": seed, "assistant": art_id, "track": self.track, "pair": self.pair,
+        result = {"method": name, "seed": seed, "assistant": art_id,
+                  "assistant_env_step": store.get(art_id).labels.get("env_step"), "track": self.track, "pair": self.pair,
                   "populations": self.population_ids, "held_out": held_out, "episodes_per_human": self.episodes,
                   "eval_seed": self.eval_seed, **summarise(self.humans, unassisted, assisted, self.intents)}
         inputs = [art_id, *dict.fromkeys(self.human_ids), self.bundle.track_id, *self.population_ids]
@@ -296,8 +320,18 @@ class _Session:
                 for r in rows:
                     writer.add_file(_log_name(condition, r), r["log"])
         suffix = self.held_out_suffix if held_out else ""
+        if not _is_final(store, assistant_alias(self.track, self.pair, name, seed), art_id):
+            # an earlier checkpoint (or a run the alias no longer names) must not take the final's alias
+            suffix = f"/checkpoint-{art_id[:12]}{suffix}"
         store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{suffix}")
         return dict(result, id=writer.artifact.id, cached=False)
+
+
+def _is_final(store: Store, alias: str, art_id: str) -> bool:
+    try:
+        return store.resolve(alias) == art_id
+    except NotFoundError:
+        return False
 
 
 def _log_name(condition: str, row: Mapping[str, Any]) -> str:
@@ -327,14 +361,16 @@ def _latents_npz(rows: Sequence[dict]) -> bytes | None:
     return buffer.getvalue()
 
 
-def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress):
+def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress,
+              assistant_refs=None):
     from d2a_core.training.assistant import parse_pair
 
     intents = parse_pair(pair)
     if len(set(names)) != len(names):
         raise UsageError(f"a method is named twice: {', '.join(names)}")
     track = load_track_bundle(store, track_ref, EnvConfig().dt).track.name
-    found = find_assistants(store, track, pair, names, seeds)
+    found = (named_assistants(store, track, pair, assistant_refs) if assistant_refs
+             else find_assistants(store, track, pair, names, seeds))
     env_record = {k: store.get(found[0][2]).config[k] for k in ENV_SECTIONS}
     for name, seed, art_id in found[1:]:
         if {k: store.get(art_id).config[k] for k in ENV_SECTIONS} != env_record:
