@@ -26,9 +26,14 @@ def _goal(summary: dict, group: str) -> str:
     return f"{summary[f'{group}/{name}_unassisted']:.2f} → {summary[f'{group}/{name}_assisted']:.2f}"
 
 
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
 def row(label: str, summary: dict) -> str:
-    accuracy = " / ".join(f"{summary.get(f'{group}/intent_accuracy', float('nan')):.2f}" for group in GROUPS)
-    return (f"| {label} | {summary['intent_f1']:.2f} "
+    # methods without an intent estimate (dreamer) have no F1 or accuracy: "-"
+    accuracy = " / ".join(_num(summary.get(f"{group}/intent_accuracy")) for group in GROUPS)
+    return (f"| {label} | {_num(summary.get('intent_f1'))} "
             f"| {summary['pass/weak/progress_gain']:+.0f}, {_goal(summary, 'pass/weak')} "
             f"| {summary['pass/expert/progress_ratio']:.2f}, {_goal(summary, 'pass/expert')} "
             f"| {summary['stay/weak/progress_gain']:+.0f}, {_goal(summary, 'stay/weak')} "
