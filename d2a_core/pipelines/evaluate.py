@@ -301,10 +301,11 @@ class _Session:
             "condition": "assisted", "method": name, "assistant_seed": seed, "assistant": art_id},
             partner_window=window)
         latents = _latents_npz(assisted)
+        art = store.get(art_id)
         # held out: humans of populations the assistant was not trained with (its inputs say which)
-        held_out = not set(self.population_ids) <= set(store.get(art_id).inputs)
-        result = {"method": name, "seed": seed, "assistant": art_id,
-                  "assistant_env_step": store.get(art_id).labels.get("env_step"), "track": self.track, "pair": self.pair,
+        held_out = not set(self.population_ids) <= set(art.inputs)
+        result = {"method": name, "seed": seed, "assistant": art_id, "assistant_env_step": art.labels.get("env_step"),
+                  "track": self.track, "pair": self.pair,
                   "populations": self.population_ids, "held_out": held_out, "episodes_per_human": self.episodes,
                   "eval_seed": self.eval_seed, **summarise(self.humans, unassisted, assisted, self.intents)}
         inputs = [art_id, *dict.fromkeys(self.human_ids), self.bundle.track_id, *self.population_ids]
@@ -320,18 +321,11 @@ class _Session:
                 for r in rows:
                     writer.add_file(_log_name(condition, r), r["log"])
         suffix = self.held_out_suffix if held_out else ""
-        if not _is_final(store, assistant_alias(self.track, self.pair, name, seed), art_id):
+        if store.refs().get(assistant_alias(self.track, self.pair, name, seed)) != art_id:
             # an earlier checkpoint (or a run the alias no longer names) must not take the final's alias
             suffix = f"/checkpoint-{art_id[:12]}{suffix}"
         store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{suffix}")
         return dict(result, id=writer.artifact.id, cached=False)
-
-
-def _is_final(store: Store, alias: str, art_id: str) -> bool:
-    try:
-        return store.resolve(alias) == art_id
-    except NotFoundError:
-        return False
 
 
 def _log_name(condition: str, row: Mapping[str, Any]) -> str:

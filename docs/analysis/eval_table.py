@@ -19,8 +19,8 @@ from d2a_core.pipelines.evaluate import CRITERION
 GROUPS = ("imperfect", "near_perfect")
 
 
-def _num(value: float | None, fmt: str = ".2f") -> str:
-    return "-" if value is None else format(value, fmt)
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
 
 
 def cell(block: dict) -> str:
