@@ -66,9 +66,17 @@ def _sources_title(ids: Sequence[str]) -> str:
     return "from: " + ", ".join(ids) if ids else ""
 
 
-def _ours_change(cell: dict[str, Any], metric: str) -> Cell:
+INTENT_MET_TEXT = {"pass": "the share of episodes finished ahead of the opponent",
+                   "stay": "the share of episodes finished without ever getting ahead",
+                   "left": "the share of steps held left of the opponent while racing it",
+                   "right": "the share of steps held right of the opponent while racing it"}
+"""What the Intent met column counts, per intent (`evaluation.criteria.CRITERION_METRIC`)."""
+
+
+def _ours_change(cell: dict[str, Any], metric: str, ran: bool) -> Cell:
     if cell.get("mean") is None:
-        return Cell(["not run"])
+        # a method that ran but has no value here: evaluations older than the metric
+        return Cell(["not recorded" if ran else "not run"])
     d = DECIMALS[metric]
     lines = [f"{_num(cell['mean'], d)} ± {cell['std']:.{d}f}" + (f" {IMPROVED}" if cell["improved"] else ""),
              f"CI {cell['ci_text']} · IQM {_num(cell['iqm'], d)}"]
@@ -103,11 +111,12 @@ def change_blocks(tables: Sequence[dict[str, Any]]) -> list[Block]:
             f"the mean over training seeds; IQM: interquartile mean. Seeds: {_seeds_text(t['seeds'], names)}. "
             f"Humans per seed: {per_seed}; paired episodes per human: {episodes}. Preset: assistants "
             f"{'; '.join(t['preset']['assistants']) or '?'}; humans {'; '.join(t['preset']['humans']) or '?'}. "
-            f"{paper_note}")))
+            f"{paper_note} Intent met (not in the paper): change in {INTENT_MET_TEXT.get(t['intent'], 'the intent criterion')}, "
+            "the human's own goal, which progress does not show.")))
         header = ["Method", "", *(f"{HEADERS[m]} {UP if HIGHER_IS_BETTER[m] else DOWN}" for m in t["metrics"]), "from"]
         rows = []
         for r in t["rows"]:
-            rows.append([Cell([r["name"]]), Cell(["ours"]), *(_ours_change(r["cells"][m], m) for m in t["metrics"]),
+            rows.append([Cell([r["name"]]), Cell(["ours"]), *(_ours_change(r["cells"][m], m, r["ran"]) for m in t["metrics"]),
                          Cell([short(r["sources"])], title=_sources_title(r["sources"]))])
             if t["paper_table"]:
                 rows.append([Cell([""]), Cell(["paper"]),

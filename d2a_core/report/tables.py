@@ -2,7 +2,10 @@
 
 - `change_tables`: Table 1 and the appendix tables (tab:pass_stay, tab:left_right): per track,
   pair, intent and group of humans, each method's change over the same humans unassisted in
-  progress, return, collisions, interventions and speed. Per cell: mean +- std over every
+  progress, return, collisions, interventions and speed, and (not in the paper) in the humans' own
+  intent criterion (`evaluation.criteria`: pass finished ahead, stay finished never ahead,
+  left/right the side held), which progress alone cannot see: an assistant can raise a pass
+  driver's progress by keeping it behind the opponent. Per cell: mean +- std over every
   (training seed, human) value, as the paper aggregates; the 95 % bootstrap CI of the mean over
   training seeds (one value per seed: its mean over humans); the interquartile mean of the
   (seed, human) values; the paper's value; the evaluation artifacts it came from.
@@ -28,14 +31,17 @@ from d2a_core.report import paper
 from d2a_core.report.collect import Collected, Evaluation, method_key
 from d2a_core.report.stats import MIN_SEEDS, bootstrap_ci, ci_text, iqm, mean_std
 
-METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s")
+INTENT_MET = "intent_criterion"
+"""`d2a eval`'s per-human intent criterion (pipelines.evaluate.CRITERION); evaluations made before
+it was recorded have no value, and their cells say so."""
+METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s", INTENT_MET)
 HIGHER_IS_BETTER = {"progress_m": True, "return": True, "collision": False, "intervention": False,
-                    "mean_speed_m_s": True}
-DECIMALS = {"progress_m": 1, "return": 1, "collision": 2, "intervention": 2, "mean_speed_m_s": 1}
+                    "mean_speed_m_s": True, INTENT_MET: True}
+DECIMALS = {"progress_m": 1, "return": 1, "collision": 2, "intervention": 2, "mean_speed_m_s": 1, INTENT_MET: 2}
 HEADERS = {"progress_m": "Progress (m)", "return": "Return", "collision": "Collisions",
-           "intervention": "Interventions", "mean_speed_m_s": "Speed (m/s)"}
-MARKED = ("progress_m", "return", "collision", "mean_speed_m_s")
-"""Metrics the paper marks (blue, bold); interventions it leaves unmarked."""
+           "intervention": "Interventions", "mean_speed_m_s": "Speed (m/s)", INTENT_MET: "Intent met"}
+MARKED = ("progress_m", "return", "collision", "mean_speed_m_s", INTENT_MET)
+"""Metrics marked (blue, bold) as the paper marks its own; interventions it leaves unmarked."""
 GROUPS = ("imperfect", "near_perfect")
 SWAP_METRICS = ("progress_m", "collision", "intervention", "mean_speed_m_s")
 

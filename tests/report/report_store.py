@@ -64,13 +64,15 @@ def _mcap(steps: int, dt: float) -> bytes:
 
 
 def delta(method: str, seed: int, group: str, number: int, intent: str) -> dict[str, float]:
+    # dreamer's evaluation predates the intent criterion (no `intent_criterion`), as old stores do
     if method == "dreamer":
         return {"progress_m": -5.0, "return": -1.0, "collision": 0.0, "intervention": 0.02, "mean_speed_m_s": -0.5}
     if group == "near_perfect":
-        return {"progress_m": -1.0, "return": 0.5, "collision": 0.0, "intervention": 0.2, "mean_speed_m_s": 0.1}
+        return {"progress_m": -1.0, "return": 0.5, "collision": 0.0, "intervention": 0.2, "mean_speed_m_s": 0.1,
+                "intent_criterion": -0.5}
     sign = 1.0 if intent == "pass" else 0.5
     return {"progress_m": sign * (10.0 * seed + number), "return": 2.0 + seed, "collision": -0.1,
-            "intervention": 0.3, "mean_speed_m_s": 1.0 + 0.1 * number}
+            "intervention": 0.3, "mean_speed_m_s": 1.0 + 0.1 * number, "intent_criterion": 0.1 * seed}
 
 
 def _evaluation(store: Store, method: str, seed: int, assistant: str, populations: list[str], human_ids: dict,

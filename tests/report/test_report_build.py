@@ -67,11 +67,17 @@ def test_the_change_table_has_the_hand_computed_cells(built):
     assert not ail["ran"] and ail["cells"]["progress_m"]["mean"] is None
     assert ail["cells"]["progress_m"]["paper"]["mean"] == -116.6
 
+    # the intent criterion (not in the paper): seed means 0, 0.1, 0.2; dreamer's evaluation has none
+    met = _row(table, "dream2assist")["cells"]["intent_criterion"]
+    assert met["mean"] == pytest.approx(0.1) and met["improved"] and met["paper"] is None
+    assert _row(table, "dreamer")["cells"]["intent_criterion"]["mean"] is None
+
     stay = _row(_table(result, "change/straightaway/pass-stay/stay/imperfect"), "dream2assist")["cells"]["progress_m"]
     assert stay["mean"] == pytest.approx(6.0)  # half of pass's
     near = _table(result, "change/straightaway/pass-stay/pass/near_perfect")
     assert [r["method"] for r in near["rows"]] == ["dreamer", "dream2assist"]  # no paper rows for near-perfect
     assert near["paper_table"] is None and _row(near, "dream2assist")["cells"]["progress_m"]["mean"] == -1.0
+    assert not _row(near, "dream2assist")["cells"]["intent_criterion"]["improved"]  # -0.5: lost its goal
 
 
 def test_f1_and_intent_swap_tables(built):
@@ -111,6 +117,7 @@ def test_lineage_is_exactly_the_artifacts_used(built):
     md = store.read_bytes(result["id"], "report.md").decode()
     assert all(i in md for i in expected)  # the artifact list at the end
     assert ids["evaluations"][("dreamer", 0)][:12] in md and "n/a (1 seed)" in md and "not run" in md
+    assert "Intent met" in md and "not recorded" in md  # dreamer's evaluation has no intent criterion
 
 
 def test_all_five_figure_kinds_and_the_files(built):
