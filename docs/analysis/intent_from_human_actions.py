@@ -10,6 +10,7 @@ it never saw: the held-out case). The assistant's own estimate (`y_hat`) on the 
 printed beside it, and, for the richest features, each human's accuracy when left out.
 
     python docs/analysis/intent_from_human_actions.py STORE ARTIFACT_ID
+    python docs/analysis/intent_from_human_actions.py STORE FIT_ID SCORE_ID   # fit on one, score another
 """
 
 from __future__ import annotations
@@ -49,8 +50,9 @@ def features(actions: np.ndarray) -> dict[str, np.ndarray]:
             f"the last {WINDOW} actions + episode mean, min, step": np.hstack([window, mean_so_far, min_so_far, step])}
 
 
-def main(store_path: str, ref: str) -> None:
-    store = Store(store_path)
+def load(store: Store, ref: str) -> dict:
+    """Per-step feature sets, labels, episode and human groups and the assistant's estimate of
+    one artifact's assisted episodes."""
     art = store.get(ref)
     steps = np.load(store.path(art.id, "steps.npz"))
     result = json.loads(store.path(art.id, "eval.json").read_text())
@@ -69,16 +71,36 @@ def main(store_path: str, ref: str) -> None:
         by_episode.append(np.full(n, i))
         by_human.append(np.full(n, row["human"]))
         y_hat.append(steps["y_hat"][mask])
-    y = np.concatenate(labels)
-    groups = {"other episodes of the same humans": np.concatenate(by_episode),
-              "humans it never saw": np.concatenate(by_human)}
+    return {"art": art, "rows": rows, "humans": humans, "x": {k: np.vstack(v) for k, v in sets.items()},
+            "y": np.concatenate(labels), "by_episode": np.concatenate(by_episode),
+            "by_human": np.concatenate(by_human), "y_hat": np.concatenate(y_hat)}
+
+
+def across(store_path: str, train_ref: str, test_ref: str) -> None:
+    """Fit on every step of one artifact's humans, score on another's (e.g. populations of
+    another seed): the held-out bar's ceiling for an estimator reading the human's actions."""
+    store = Store(store_path)
+    train, test = load(store, train_ref), load(store, test_ref)
+    print(f"fit on {train['art'].id[:12]} ({len(train['y'])} steps), scored on {test['art'].id[:12]} "
+          f"({len(test['y'])} steps); the assistant's own estimate there: "
+          f"{f1_score(test['y'], test['y_hat'], average='macro'):.3f}")
+    print("| features of the human's actions | F1 on the other humans |")
+    print("|---|---|")
+    for name, x in train["x"].items():
+        model = HistGradientBoostingClassifier(max_iter=200, random_state=0).fit(x, train["y"])
+        print(f"| {name} | {f1_score(test['y'], model.predict(test['x'][name]), average='macro'):.3f} |")
+
+
+def main(store_path: str, ref: str) -> None:
+    data = load(Store(store_path), ref)
+    art, rows, humans, y = data["art"], data["rows"], data["humans"], data["y"]
+    groups = {"other episodes of the same humans": data["by_episode"], "humans it never saw": data["by_human"]}
     print(f"{art.kind} {art.id[:12]}: {len(rows)} assisted episodes, {len(y)} steps")
-    print(f"the assistant's own estimate: per-step F1 {f1_score(y, np.concatenate(y_hat), average='macro'):.3f}")
+    print(f"the assistant's own estimate: per-step F1 {f1_score(y, data['y_hat'], average='macro'):.3f}")
     print("| features of the human's actions | F1, " + " | F1, ".join(groups) + " |")
     print("|---|" + "---|" * len(groups))
     left_out = {}
-    for name, parts in sets.items():
-        x = np.vstack(parts)
+    for name, x in data["x"].items():
         scores = []
         for group_name, group in groups.items():
             predicted = np.zeros_like(y)
@@ -94,4 +116,7 @@ def main(store_path: str, ref: str) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    if len(sys.argv) == 4:
+        across(*sys.argv[1:4])
+    else:
+        main(*sys.argv[1:3])
