@@ -1,29 +1,35 @@
 """Which config preset an artifact was made with, read from its recorded config.
 
-Artifacts record their resolved config sections, not the preset's name. A preset file lists only
-the values it sets over the schema defaults, so a record "is" preset P when every value P's file
-sets (in the sections the record holds) equals the record's; values changed with `--set` show up
-as differences. The preset files are read as YAML: the config schema is not imported (it pulls in
-the simulator, which the report never loads).
+Artifacts record their resolved config sections, not the preset's name. A record "is" preset P
+when every value it holds equals P's resolved value (the preset file over the schema defaults);
+values changed with `--set` show up as differences, including values the preset file leaves at
+their defaults (`assistant.partner_window=16` on `quick`). Keys a record lacks are not counted:
+older artifacts predate them, and some keys are recorded only off their default. The keys a
+method sets itself (its reward weights and intent head, `training.methods`) are not differences:
+the report names the method.
 """
 
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-import yaml
+from d2a_core.config.loader import available_presets
 
-from d2a_core.config.loader import PRESET_DIR, available_presets
-
-MAX_LISTED = 3
+MAX_LISTED = 8
+SET_BY_METHOD = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads"})
 
 
 @functools.lru_cache(maxsize=None)
 def _preset_values(name: str) -> dict[str, Any]:
-    with (PRESET_DIR / f"{name}.yaml").open(encoding="utf-8") as fh:
-        return yaml.safe_load(fh) or {}
+    # imported here: the schema pulls in the simulator's configs, which only this needs
+    from d2a_core.config.loader import resolve_config
+    from d2a_core.config.schema import Config
+
+    # every key, also those a record omits at their default; through JSON, as manifests store it
+    return json.loads(json.dumps(resolve_config(Config, name).as_dict()))
 
 
 def _leaves(values: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -44,16 +50,17 @@ def _lookup(record: Mapping[str, Any], dotted: str) -> tuple[bool, Any]:
 
 
 def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]:
-    """(values of the preset checked, 'key=recorded value' for each that differs)."""
+    """(values of the record checked, 'key=recorded value' for each that differs from the preset)."""
     checked, differ = 0, []
-    for key, value in _leaves(_preset_values(preset)):
-        if key.split(".")[0] not in record:
+    resolved = _preset_values(preset)
+    for key, recorded in _leaves(record):
+        found, value = _lookup(resolved, key)
+        if not found or key in SET_BY_METHOD:
             continue
-        found, recorded = _lookup(record, key)
         checked += 1
-        if not found or recorded != value:
-            differ.append(f"{key}={recorded if found else '(absent)'}")
-    return checked, differ
+        if recorded != value:
+            differ.append(f"{key}={recorded if isinstance(recorded, str) else json.dumps(recorded)}")
+    return checked, sorted(differ)
 
 
 def describe(record: Mapping[str, Any] | None) -> str:

@@ -1,0 +1,23 @@
+"""Which preset an artifact was made with, as the report names it (d2a_core.report.presets)."""
+
+from __future__ import annotations
+
+from d2a_core.report.presets import describe
+
+
+def test_a_value_the_preset_file_leaves_at_its_default_is_named():
+    # quick.yaml does not set partner_window: it is a schema default the run changed with --set
+    record = {"assistant": {"env_steps": 40000, "partner_window": 16, "human_explore": False}}
+    assert describe(record) == "quick, except assistant.human_explore=false, assistant.partner_window=16"
+
+
+def test_method_keys_and_keys_the_record_lacks_are_not_differences():
+    record = {"assistant": {"env_steps": 40000, "reward": {"alpha_r": 1.0, "alpha_a": 1.0}}}
+    assert describe(record) == "quick"
+    assert describe({"assistant": {"env_steps": 40000, "some_future_key": 3}}) == "quick"
+
+
+def test_many_differences_read_as_custom():
+    record = {"dreamer": {"train_ratio": 3.0, "batch_size": 3, "batch_length": 3, "units": 3, "layers": 3,
+                          "actor_lr": 3.0, "critic_lr": 3.0, "model_lr": 3.0, "imag_horizon": 3}}
+    assert describe(record).startswith("custom (closest preset ")
