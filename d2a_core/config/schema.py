@@ -12,9 +12,9 @@ from d2a_core.config.section import Section
 from d2a_core.objectives.rewards import RewardConfig
 from d2a_core.sim.driver import DriverConfig
 from d2a_core.sim.episode_log_config import EpisodeLogConfig
-from d2a_core.sim.race_env import EnvConfig
+from d2a_core.sim.env_config import EnvConfig
 from d2a_core.sim.vehicle import VehicleConfig
-from d2a_core.sim.world import WorldConfig
+from d2a_core.sim.world_config import WorldConfig
 from d2a_core.tracks.config import TracksConfig
 from d2a_core.training.config import AssistantConfig, HumansConfig
 from d2a_core.agents.baselines.no_rssm_config import NoRSSMConfig

@@ -41,40 +41,20 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from pydantic import Field
 
-from d2a_core.config.section import Section
 from d2a_core.objectives.rewards import INTENTS, RewardConfig, StepQuantities, reward_terms
+from d2a_core.sim.env_config import DEFAULT_LOOKAHEAD_M, EnvConfig
 from d2a_core.sim.replay import OpponentReplay
 from d2a_core.sim.vehicle import Vehicle, VehicleConfig
 from d2a_core.sim.world import RaceWorld, WorldConfig
 from d2a_core.tracks.track import Track
 
-DEFAULT_LOOKAHEAD_M = (0.0, 5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 130.0)
 # where a finished opponent is shown, straight ahead in the car frame (beyond every lookahead)
 FAR_AHEAD_M = 200.0
-
-
-class EnvConfig(Section):
-    """The racing environment: timing, start, termination and observation layout."""
-
-    dt: float = Field(0.1, gt=0, description="control step (s); the paper's CARLA step")
-    time_limit_s: Optional[float] = Field(
-        None, gt=0, description="truncate after this long; default: the finish distance at 8 m/s"
-    )
-    start_speed_m_s: float = Field(20.0, ge=0, description="rolling start speed of both cars")
-    off_track_margin_m: float = Field(2.0, ge=0, description="terminate this far beyond a road edge")
-    edge_lookahead_m: list[float] = Field(list(DEFAULT_LOOKAHEAD_M), min_length=1)
-    car_length_m: float = Field(4.6, gt=0)
-    car_width_m: float = Field(1.9, gt=0)
-    car_height_m: float = Field(1.2, gt=0)
-    render_view: str = Field("chase", pattern="^(chase|birdseye)$")
-    render_width: int = Field(320, ge=16)
-    render_height: int = Field(240, ge=16)
 
 
 EGO_FIELDS = ("x", "y", "vx", "vy", "speed", "yaw_rate", "cos_yaw", "sin_yaw", "cos_track_yaw", "sin_track_yaw",

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 from d2a_core.report.presets import describe
 
 
@@ -21,3 +24,13 @@ def test_many_differences_read_as_custom():
     record = {"dreamer": {"train_ratio": 3.0, "batch_size": 3, "batch_length": 3, "units": 3, "layers": 3,
                           "actor_lr": 3.0, "critic_lr": 3.0, "model_lr": 3.0, "imag_horizon": 3}}
     assert describe(record).startswith("custom (closest preset ")
+
+
+def test_resolving_presets_loads_neither_the_simulator_nor_torch():
+    # the report reads artifacts only (docs/architecture.md); the schema's sim settings live apart
+    code = ("import sys\nfrom d2a_core.report.presets import describe\n"
+            "describe({'assistant': {'env_steps': 1}})\n"
+            "print(sorted(m for m in ('pybullet', 'torch', 'd2a_core.sim.world', 'd2a_core.sim.race_env') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
