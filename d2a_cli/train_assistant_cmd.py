@@ -35,6 +35,9 @@ def train_assistant(
     preset: PresetOpt = "quick",
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,
+    alias: Annotated[bool, typer.Option(
+        "--alias/--no-alias", help="Point assistants/<track>/<pair>/<method>/seed<k> (and assistant-runs/...) at "
+                                   "this run; --no-alias for a side run (a sweep, a timing) found by its id.")] = True,
     *,
     run: RunContext,
 ) -> None:
@@ -52,7 +55,7 @@ def train_assistant(
         bars = TrainingBars(cleanup, resolved.config.assistant.env_steps, return_label="r^A")
         for name in method:
             result = train(store, track, pair, name, resolved, run.seed, humans=humans, device=run.device,
-                           progress=bars.reporter(name))
+                           progress=bars.reporter(name), move_aliases=alias)
             bars.finish(name, result, "assistant")
             results.append(result)
 

@@ -67,6 +67,25 @@ def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trai
     assert store.verify() == []
 
 
+def test_a_side_run_with_no_alias_leaves_the_method_and_seed_aliases(cli, trained_assistants, tmp_path):
+    store_path = copy_store(trained_assistants[0], tmp_path)
+    store = Store(store_path)
+    names = ("assistants/straightaway/pass-stay/dreamer/seed0", "assistant-runs/straightaway/pass-stay/dreamer/seed0")
+    before = [store.resolve(n) for n in names]
+    side = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--set", "assistant.log_every=120",
+               "--no-alias", "--json", store=store_path)
+    assert side.code == 0, side.stderr
+    result = side.json["assistants"][0]
+    assert not result["cached"] and result["aliases_moved"] == []
+    assert [store.resolve(n) for n in names] == before  # still the main run
+    assert result["checkpoints"][-1]["id"] not in before and store.get(result["run_id"]).kind == "assistant-run"
+    # the same side run again with the default: the stored result, and now the aliases follow it
+    again = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--set", "assistant.log_every=120",
+                "--json", store=store_path)
+    assert again.code == 0 and again.json["assistants"][0]["cached"]
+    assert [store.resolve(n) for n in names] == [result["checkpoints"][-1]["id"], result["run_id"]]
+
+
 def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistants, pair_store_template, tmp_path):
     """Trained again in a fresh copy of the same populations: the same checkpoint and run ids
     (timings live in the manifest's provenance, outside the id)."""

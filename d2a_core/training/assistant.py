@@ -118,15 +118,18 @@ class _Timer:
 
 def train_assistant(store: Store, track_ref: str, pair: str, method_name: str, resolved: ResolvedConfig,
                     seed: int, humans: Sequence[str] | None = None, device: str = "cpu",
-                    progress: ProgressFn | None = None) -> dict[str, Any]:
+                    progress: ProgressFn | None = None, move_aliases: bool = True) -> dict[str, Any]:
     """Train (or resume, or look up) one assistant; returns its JSON summary. Everything it loads
-    and stores is held against `d2a artifacts gc` while it runs (lease) and after it dies (run holds)."""
+    and stores is held against `d2a artifacts gc` while it runs (lease) and after it dies (run holds).
+    `move_aliases=False` leaves `assistants/...` and `assistant-runs/...` where they point (a side
+    run, e.g. a sweep or a timing, found by its id), so evaluations by method and seed keep theirs."""
     with store.lease():
-        return _train(store, track_ref, pair, method_name, resolved, seed, humans, device, progress)
+        return _train(store, track_ref, pair, method_name, resolved, seed, humans, device, progress, move_aliases)
 
 
 def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: ResolvedConfig, seed: int,
-           humans_refs: Sequence[str] | None, device: str, progress: ProgressFn | None) -> dict[str, Any]:
+           humans_refs: Sequence[str] | None, device: str, progress: ProgressFn | None,
+           move_aliases: bool) -> dict[str, Any]:
     intents = parse_pair(pair)
     method = get_method(method_name)
     cfg = method.configure(resolved.config, intents)
@@ -140,7 +143,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
     if cached:
         names = _aliases(bundle.track.name, pair, method.name, seed, cached["id"], cached["run_id"])
-        return dict(cached, aliases_moved=store.point_aliases(names))
+        return dict(cached, aliases_moved=store.point_aliases(names) if move_aliases else [])
 
     if ac.torch_threads:
         torch.set_num_threads(ac.torch_threads)
@@ -272,7 +275,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id)
-    moved = store.point_aliases(names)
+    moved = store.point_aliases(names) if move_aliases else []
     state_path.unlink(missing_ok=True)
     store.release_run(key)
     return dict(result, run_id=writer.artifact.id, cached=False, aliases_moved=moved)
