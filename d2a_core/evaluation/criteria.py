@@ -35,13 +35,17 @@ FINISH_RATE = 0.8
 HOLD_SHARE = 0.7
 EXPERT_RULE = "highest mean return among checkpoints meeting the intent criterion (else highest return)"
 
-__all__ = ["CRITERION_METRIC", "EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
+__all__ = ["CRITERION_KEY", "CRITERION_METRIC", "EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
            "performance_fractions"]
 
 
 CRITERION_METRIC = {"pass": "finished_ahead", "stay": "finished_never_ahead", "left": "held_left",
                     "right": "held_right"}
 """The evaluation metric each intent's criterion thresholds."""
+
+CRITERION_KEY = "intent_criterion"
+"""Where `d2a eval` stores a human's `criterion_value` (per human, unassisted, assisted, change),
+and the report reads it."""
 
 
 def criterion_value(intent: str, metrics: Mapping[str, float]) -> float:

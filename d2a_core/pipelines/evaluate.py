@@ -36,7 +36,7 @@ import numpy as np
 
 from d2a_core.artifacts import Store, canonical_json
 from d2a_core.errors import NotFoundError, UsageError
-from d2a_core.evaluation.criteria import criterion_value
+from d2a_core.evaluation.criteria import CRITERION_KEY, criterion_value
 from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
@@ -52,7 +52,7 @@ own objective (r^task + r^intent)."""
 # ... and the human's own intent criterion (`evaluation.criteria.criterion_value`: finished ahead
 # for pass, finished never ahead for stay, the side share for left/right), so a table shows whether
 # assistance served the intent, not only the progress.
-CRITERION = "intent_criterion"
+CRITERION = CRITERION_KEY
 SUMMARY_METRICS = (*METRICS, CRITERION)
 ENV_SECTIONS = ("env", "reward", "vehicle", "world")
 SEED_BASE = 50_000_017  # env seeds of evaluation episodes: SEED_BASE + 1000 * eval_seed + j

@@ -17,9 +17,9 @@ from collections.abc import Iterator, Mapping
 from typing import Any
 
 from d2a_core.config.loader import available_presets
+from d2a_core.training.methods import METHOD_SET_KEYS
 
 MAX_LISTED = 8
-SET_BY_METHOD = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads"})
 
 
 @functools.lru_cache(maxsize=None)
@@ -55,7 +55,7 @@ def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]
     resolved = _preset_values(preset)
     for key, recorded in _leaves(record):
         found, value = _lookup(resolved, key)
-        if not found or key in SET_BY_METHOD:
+        if not found or key in METHOD_SET_KEYS:
             continue
         checked += 1
         if recorded != value:

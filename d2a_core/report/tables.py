@@ -27,13 +27,14 @@ from typing import Any
 
 import numpy as np
 
+from d2a_core.evaluation.criteria import CRITERION_KEY
 from d2a_core.report import paper
 from d2a_core.report.collect import Collected, Evaluation, method_key
 from d2a_core.report.stats import MIN_SEEDS, bootstrap_ci, ci_text, iqm, mean_std
 
-INTENT_MET = "intent_criterion"
-"""`d2a eval`'s per-human intent criterion (pipelines.evaluate.CRITERION); evaluations made before
-it was recorded have no value, and their cells say so."""
+INTENT_MET = CRITERION_KEY
+"""`d2a eval`'s per-human intent criterion; evaluations made before it was recorded have no value,
+and their cells say so."""
 METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s", INTENT_MET)
 HIGHER_IS_BETTER = {"progress_m": True, "return": True, "collision": False, "intervention": False,
                     "mean_speed_m_s": True, INTENT_MET: True}
