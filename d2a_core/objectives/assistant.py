@@ -143,6 +143,23 @@ def assistant_reward(
     return AssistantRewardTerms(task, intervention, r_star, distance, total)
 
 
+def totals_by_intent(
+    task: np.ndarray,
+    assistant_action: np.ndarray,
+    human_action: np.ndarray,
+    expert_rewards: np.ndarray,
+    expert_actions: np.ndarray,
+    cfg: AssistantRewardConfig,
+) -> np.ndarray:
+    """r^A (K, N) as it would be had each of the K intents of the pair been inferred: row k uses
+    the expert of intent k (`expert_rewards` (K, N), `expert_actions` (K, N, A)). The replay keeps
+    these so that a learner can take the reward under its current estimate instead of the one it
+    had when the step was collected (`DreamerConfig.reward_relabel_head`)."""
+    rewards, actions = np.asarray(expert_rewards), np.asarray(expert_actions)
+    return np.stack([assistant_reward(task, assistant_action, human_action, rewards[k], actions[k], cfg).total
+                     for k in range(rewards.shape[0])])
+
+
 def pick_intent(per_intent: np.ndarray, intent_index: np.ndarray) -> np.ndarray:
     """Per env, the value of the expert of its inferred intent: `per_intent` (K, N, ...) holds
     one value per intent of the pair, `intent_index` (N,) the inferred intent y_hat in [0, K)."""

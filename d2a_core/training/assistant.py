@@ -199,7 +199,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
                for k, e in enumerate(expert_agents)] if method.uses_experts else None
     label_field = INTENT_HEAD_NAME if method.intent_head else None
     collector = SharedCollector(envs, drivers, intents, draw, assistant=agent, experts=experts,
-                                reward_config=ac.reward, label_field=label_field, partner_window=ac.partner_window)
+                                reward_config=ac.reward, label_field=label_field, partner_window=ac.partner_window,
+                                reward_by_intent=method.relabels_reward(cfg))
 
     def evaluate_panel(assistant, steps: bool = False) -> list[dict[str, Any]]:
         return _run_panel(the_panel, by_id, intents, make_env, ac, seed, assistant, expert_agents,

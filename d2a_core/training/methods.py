@@ -69,6 +69,11 @@ class Method:
         """Whether its reward queries the experts (r_hat* or a*), so they must be filtered."""
         return bool(self.alpha_r) or bool(self.alpha_a)
 
+    def relabels_reward(self, config: Any) -> bool:
+        """Whether its learner takes each replayed step's reward under its current intent estimate
+        (`dreamer.reward_relabel_head`), so the replay must carry the reward under each intent."""
+        return self.entry_point == DREAMER_AGENT and config.dreamer.reward_relabel_head is not None
+
     def builder(self) -> Any:
         """Import and return the agent builder of `entry_point`."""
         _require_implemented(self)
@@ -96,6 +101,10 @@ class Method:
             if value != assistant.omit_at_default[key] and not dreamer_head:
                 raise UsageError(f"assistant.{key}={value!r} configures a Dreamer intent head; "
                                  f"method {self.name!r} has none")
+        relabel = config.dreamer.reward_relabel_head
+        if relabel is not None and not (dreamer_head and self.uses_experts and relabel == INTENT_HEAD_NAME):
+            raise UsageError(f"dreamer.reward_relabel_head={relabel!r}: method {self.name!r} needs a Dreamer "
+                             f"intent head and expert terms for it, and the head is named {INTENT_HEAD_NAME!r}")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
         if dreamer_head:

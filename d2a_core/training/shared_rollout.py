@@ -40,9 +40,10 @@ import torch
 from d2a_core.agents.dreamer.agent import DreamerAgent, PolicyState
 from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.agents.dreamer.latent import Latent
+from d2a_core.agents.dreamer.world_model import REWARD_BY_CLASS_FIELD
 from d2a_core.agents.protocol import AssistantAgent
 from d2a_core.evaluation.metrics import episode_metrics
-from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, pick_intent
+from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, pick_intent, totals_by_intent
 from d2a_core.sim.episode_log import EpisodeRecorder
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.sim.recording import abort_open, close_with_outcome, scene_of, step_record
@@ -142,7 +143,8 @@ class SharedCollector:
     when the method's reward queries no expert). `assistant`: None drives unassisted (a_A = 0).
     `keep_steps`: keep per-step arrays of each episode (terms, actions, intent estimates).
     `partner_window`: how many of the human's last actions the assistant observes (its config's
-    `assistant.partner_window`)."""
+    `assistant.partner_window`). `reward_by_intent`: the assistant's replay also gets the reward
+    under each intent of the pair (`REWARD_BY_CLASS_FIELD`, for `DreamerConfig.reward_relabel_head`)."""
 
     def __init__(self, envs: Sequence[RaceEnv], humans: HumanDrivers, intents: Sequence[str],
                  next_episode: Callable[[], EpisodeSpec | None], assistant: AssistantAgent | None = None,
@@ -151,7 +153,7 @@ class SharedCollector:
                  label_field: str | None = "intent", log_dir: Path | None = None,
                  log_metadata: dict[str, Any] | None = None,
                  record_features: Callable[[EpisodeSpec], bool] | None = None,
-                 partner_window: int = 1) -> None:
+                 partner_window: int = 1, reward_by_intent: bool = False) -> None:
         self.envs = list(envs)
         self.n = len(self.envs)
         self._window = PartnerWindow(self.n, partner_window)
@@ -175,7 +177,11 @@ class SharedCollector:
         if assistant is not None and wants_experts and not self.experts:
             raise ValueError("the assistant's reward weights the experts (alpha_r or alpha_a > 0) but no "
                              "expert filters were given")
+        if reward_by_intent and not (wants_experts and self.experts):
+            raise ValueError("the reward under each intent needs the expert terms (alpha_r or alpha_a > 0) and filters")
+        self.reward_by_intent = reward_by_intent
         obs_size = self.envs[0].observation_space.shape[0]
+        self._reward_by_intent = np.zeros((self.n, len(self.intents)), np.float32)
         self._obs = np.zeros((self.n, obs_size), np.float32)  # the assistant's view
         self._human_obs = np.zeros((self.n, obs_size), np.float32)
         self._reward = np.zeros(self.n, np.float32)
@@ -204,6 +210,7 @@ class SharedCollector:
         self._terminal[i] = False
         self._done[i] = False
         self._reward[i] = 0.0
+        self._reward_by_intent[i] = 0.0
         if spec is None:
             self._idle[i] = True
             return
@@ -254,6 +261,8 @@ class SharedCollector:
                 raise ValueError("the assistant gives no intent estimate, but its reward queries the experts")
             if learn:
                 labels = {self.label_field: self._labels.copy()} if self.label_field else {}
+                if self.reward_by_intent:
+                    labels[REWARD_BY_CLASS_FIELD] = self._reward_by_intent.copy()
                 self.assistant.observe({**record, "action": a_assist, **labels})
         else:
             a_assist = np.zeros((self.n, 2), np.float32)
@@ -321,12 +330,17 @@ class SharedCollector:
             pick_intent(self._a_star, choose) if use_experts else None,
             self.reward_config if use_experts else _without_experts(self.reward_config),
         )
+        by_intent = None
+        if self.reward_by_intent and use_experts:
+            by_intent = totals_by_intent(task, a_assist, a_human, r_star, self._a_star, self.reward_config)
         if a_star_now is not None:
             self._a_star = a_star_now
         self._tick("expert_filtering", clock)
         finished = []
         for i in np.flatnonzero(stepping):
             self._reward[i] = terms.total[i]
+            if by_intent is not None:
+                self._reward_by_intent[i] = by_intent[:, i]
             ep = self._episode[i]
             ep["terms"].append([float(getattr(terms, name)[i]) for name in ASSISTANT_TERMS])
             if self._recorders[i] is not None:

@@ -207,3 +207,67 @@ def test_the_intent_heads_own_learning_rate_moves_its_weights_and_only_them_fast
     # Adam moves each weight by about its rate per step, whatever the loss's scale
     assert moved(fast, fast.world_model.extra_heads["intent"]) > 20 * moved(slow, slow.world_model.extra_heads["intent"])
     assert moved(fast, fast.world_model.encoder) < 3e-5
+
+
+def _stale_reward_agent(relabel: bool) -> tuple[DreamerAgent, "_LabelledEpisodes"]:
+    """An agent trained on episodes whose reward under intent estimate k is +1 for k = 0 and -1
+    for k = 1 (`reward_by_class`), but whose stored reward was made with a coin flip for the
+    estimate (a stale, untrained one): the stored reward says nothing about the episode's intent."""
+    torch.manual_seed(0)
+    overrides = {"reward_relabel_head": "intent"} if relabel else {}
+    agent = _smoke_agent(model_lr=1e-3, **overrides)
+    episodes, rng = _LabelledEpisodes(seed=5), np.random.default_rng(6)
+    by_class = np.tile(np.array([1.0, -1.0], np.float32), (ENVS, 1))
+    for _ in range(10 * EPISODE):
+        step = episodes.step()
+        stale = by_class[np.arange(ENVS), rng.integers(0, 2, ENVS)]
+        agent.observe({**step, "reward": stale, "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32),
+                       "intent": episodes.intent.copy(), "reward_by_class": by_class})
+    metrics = [agent.train_step() for _ in range(300)]
+    return agent, metrics
+
+
+def _predicted_reward_by_intent(agent: DreamerAgent) -> np.ndarray:
+    """Mean reward-head prediction along fresh episodes, for intent 0 and intent 1."""
+    fresh, state, sums, counts = _LabelledEpisodes(seed=8), None, np.zeros(2), np.zeros(2)
+    for t in range(2 * EPISODE):
+        step = fresh.step()
+        _, state = agent.policy(step, state, explore=False)
+        if t % EPISODE >= 3:  # the model state has seen a few observations of the episode
+            reward = agent.predict(state)["reward"].numpy()
+            np.add.at(sums, fresh.intent, reward)
+            np.add.at(counts, fresh.intent, 1)
+    return sums / counts
+
+
+def test_reward_relabelling_learns_the_reward_under_the_current_intent_estimate():
+    """`reward_relabel_head="intent"`: the reward head's target is the stored reward under the
+    intent the head picks now, so it learns +1 for intent-0 episodes and -1 for intent-1 ones,
+    where the stale stored reward (a coin flip between them) teaches it about 0 for both."""
+    relabelled, metrics = _stale_reward_agent(relabel=True)
+    assert metrics[-1]["wm/reward_relabel_change"] > 0.5  # about half the stored rewards were wrong
+    low, high = _predicted_reward_by_intent(relabelled)[[1, 0]]
+    assert high > 0.5 and low < -0.5
+    plain, metrics = _stale_reward_agent(relabel=False)
+    assert "wm/reward_relabel_change" not in metrics[-1]
+    assert np.all(np.abs(_predicted_reward_by_intent(plain)) < 0.4)
+
+
+def test_reward_relabelling_targets_and_checks():
+    from d2a_core.agents.dreamer.world_model import relabeled_reward
+
+    reward = torch.tensor([[9.0, 9.0, 9.0]])
+    by_class = torch.tensor([[[0.0, 1.0], [2.0, 3.0], [4.0, 5.0]]])
+    # step t takes its reward under the class chosen at t - 1; the window's first step keeps its own
+    np.testing.assert_array_equal(relabeled_reward(reward, by_class, torch.tensor([[1, 0, 1]])).numpy(),
+                                  [[9.0, 3.0, 4.0]])
+    with pytest.raises(ConfigError, match="reward_relabel_head 'goal' is not one of the extra heads"):
+        _smoke_agent(reward_relabel_head="goal")
+    agent = _smoke_agent(reward_relabel_head="intent")
+    rng = np.random.default_rng(0)
+    episodes = _LabelledEpisodes(seed=1)
+    for _ in range(3 * EPISODE):
+        agent.observe({**episodes.step(), "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32),
+                       "intent": episodes.intent.copy()})
+    with pytest.raises(TrainingError, match="no 'reward_by_class' field"):
+        agent.train_step()

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from d2a_core.objectives.assistant import AssistantRewardConfig, assistant_reward, combine, pick_intent
+from d2a_core.objectives.assistant import (
+    AssistantRewardConfig,
+    assistant_reward,
+    combine,
+    pick_intent,
+    totals_by_intent,
+)
 
 
 def test_defaults_are_the_papers_main_method():
@@ -90,3 +96,24 @@ def test_pick_intent_takes_each_envs_inferred_expert():
         pick_intent(rewards, np.array([2, 0, 0]))
     with pytest.raises(ValueError, match="environments"):
         pick_intent(rewards, np.array([0, 0]))
+
+
+def test_totals_by_intent_are_the_reward_under_each_inferred_intent_by_hand():
+    cfg = AssistantRewardConfig(alpha_r=1.0, alpha_a=1.0)
+    totals = totals_by_intent(
+        task=np.array([0.0, 10.0]),
+        assistant_action=np.array([[0.3, 0.4], [0.0, 0.0]]),
+        human_action=np.array([[0.5, 0.5], [1.0, 1.0]]),
+        expert_rewards=np.array([[2.0, 5.0], [-3.0, 1.0]]),               # (intents, envs)
+        expert_actions=np.array([[[0.5, 0.5], [1.0, 1.0]], [[0.8, 0.9], [1.0, 0.0]]]),
+        cfg=cfg,
+    )
+    # env 0: blended (0.8, 0.9), ||a_A|| 0.5; intent 0: 0 - 0.5 + 2 - 0.5 = 1; intent 1: 0 - 0.5 - 3 - 0 = -3.5
+    # env 1: blended (1, 1), no intervention; intent 0: 10 + 5 - 0 = 15; intent 1: 10 + 1 - 1 = 10
+    assert totals == pytest.approx(np.array([[1.0, 15.0], [-3.5, 10.0]]))
+    # row k is exactly what assistant_reward gives with intent k's expert
+    for k in range(2):
+        alone = assistant_reward(np.array([0.0, 10.0]), np.array([[0.3, 0.4], [0.0, 0.0]]),
+                                 np.array([[0.5, 0.5], [1.0, 1.0]]), np.array([[2.0, 5.0], [-3.0, 1.0]])[k],
+                                 np.array([[[0.5, 0.5], [1.0, 1.0]], [[0.8, 0.9], [1.0, 0.0]]])[k], cfg)
+        assert totals[k] == pytest.approx(alone.total)

@@ -50,6 +50,14 @@ class DreamerConfig(Section):
     reward_scale: float = Field(1.0, ge=0)
     continue_scale: float = Field(1.0, ge=0)
     extra_heads: list[HeadConfig] = Field(default_factory=list, description="extra world-model heads")
+    # A reward that depends on a classifier's estimate at collection time (the assistant's
+    # r_hat*(y_hat)) goes stale in replay: most of it was collected while the estimate was poor.
+    # Naming a categorical extra head here makes the replay carry the reward under every class
+    # (`REWARD_BY_CLASS_FIELD`) and the reward head learn the one that head picks now.
+    reward_relabel_head: str | None = Field(
+        None, description="extra head whose current argmax picks each replayed step's reward among "
+                          "the stored rewards per class (None: the stored reward)"
+    )
 
     # --- behaviour
     imag_horizon: int = Field(15, ge=1)
@@ -112,7 +120,8 @@ class DreamerConfig(Section):
         "float32", description="matmul precision in training (bfloat16: autocast, weights and optimiser stay float32)"
     )
 
-    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0}
+    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
+                       "reward_relabel_head": None}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:

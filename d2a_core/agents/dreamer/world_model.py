@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from d2a_core.errors import TrainingError
+from d2a_core.errors import ConfigError, TrainingError
 
 from .config import DreamerConfig
 from .distributions import TwoHot, categorical_kl, symlog, unimix_probs
@@ -37,6 +37,19 @@ def kl_balance(
     rep = categorical_kl(post_log, prior_log.detach())
     loss = dyn_scale * dyn.clamp(min=free_nats) + rep_scale * rep.clamp(min=free_nats)
     return loss, dyn.detach(), rep.detach()
+
+
+REWARD_BY_CLASS_FIELD = "reward_by_class"
+"""Replay field (..., K) of the reward each class of `DreamerConfig.reward_relabel_head` would
+have given on arriving at the step."""
+
+
+def relabeled_reward(reward: Tensor, by_class: Tensor, choice: Tensor) -> Tensor:
+    """Reward targets (B, T): step t's reward under the class chosen at step t - 1 (the state where
+    the action that led to t was taken), `by_class[:, t, choice[:, t - 1]]`; the first step of each
+    window, whose previous state the batch lacks, keeps its stored `reward`."""
+    picked = by_class[:, 1:].gather(-1, choice[:, :-1].unsqueeze(-1).long()).squeeze(-1)
+    return torch.cat((reward[:, :1], picked.to(reward.dtype)), 1)
 
 
 @dataclass
@@ -67,6 +80,9 @@ class WorldModel(nn.Module):
         self.heads_read_embedding = any(head.reads_embedding for head in self.extra_heads.values())
         self.heads_read_observation = any(head.reads_observation for head in self.extra_heads.values())
         self.twohot = TwoHot(c.bins, c.bin_range)
+        if c.reward_relabel_head is not None and c.reward_relabel_head not in self.extra_heads:
+            raise ConfigError(f"reward_relabel_head {c.reward_relabel_head!r} is not one of the extra heads "
+                              f"{sorted(self.extra_heads)}")
 
     def _apply(self, fn, recurse=True):  # keep the two-hot bins on the module's device
         result = super()._apply(fn, recurse)
@@ -106,7 +122,8 @@ class WorldModel(nn.Module):
 
         decoder_loss = (self.decoder.finish(decoder_pre).float() - symlog(obs)).square().sum(-1)
         reward_logits = self.reward_head.finish(reward_pre)
-        reward_loss = self.twohot.loss(reward_logits, batch["reward"])
+        reward_target, relabel_metrics = self._reward_target(latent, embedding, batch)
+        reward_loss = self.twohot.loss(reward_logits, reward_target)
         continue_target = 1.0 - batch["is_terminal"].float()
         continue_logits = self.continue_head.finish(continue_pre).squeeze(-1).float()
         continue_loss = F.binary_cross_entropy_with_logits(continue_logits, continue_target, reduction="none")
@@ -125,7 +142,8 @@ class WorldModel(nn.Module):
             "wm/continue_loss": continue_loss.mean(),
             "wm/kl_dyn": dyn.mean(),
             "wm/kl_rep": rep.mean(),
-            **self._terminal_fit(reward_logits, continue_logits, batch),
+            **self._terminal_fit(reward_logits, continue_logits, reward_target, batch),
+            **relabel_metrics,
         }
         head_batch = {**batch, EMBEDDING_FIELD: embedding} if self.heads_read_embedding else batch
         for name, head in self.extra_heads.items():
@@ -139,7 +157,25 @@ class WorldModel(nn.Module):
             loss=loss, metrics={k: v.detach() for k, v in metrics.items()}, observed=observed
         )
 
-    def _terminal_fit(self, reward_logits: Tensor, continue_logits: Tensor, batch: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    def _reward_target(self, latent: Latent, embedding: Tensor, batch: Mapping[str, Tensor]
+                       ) -> tuple[Tensor, dict[str, Tensor]]:
+        """The reward head's target: the stored reward, or (with `reward_relabel_head`) the reward
+        under the class that head picks now from each step's previous posterior state, and the mean
+        change that made (`wm/reward_relabel_change`)."""
+        name = self.config.reward_relabel_head
+        if name is None:
+            return batch["reward"], {}
+        if REWARD_BY_CLASS_FIELD not in batch:
+            raise TrainingError(f"reward_relabel_head is set but the replay has no {REWARD_BY_CLASS_FIELD!r} field")
+        with torch.no_grad():
+            head = self.extra_heads[name]
+            probs = head.predict(latent.detach(), embedding.detach(), batch["obs"])
+            target = relabeled_reward(batch["reward"], batch[REWARD_BY_CLASS_FIELD], probs.argmax(-1))
+            change = (target - batch["reward"]).abs().mean()
+        return target, {"wm/reward_relabel_change": change}
+
+    def _terminal_fit(self, reward_logits: Tensor, continue_logits: Tensor, reward_target: Tensor,
+                      batch: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """How well the heads know the episode ends, the rare steps that carry a crash's penalty
         or the finish bonus (0 when the batch holds none): the mean predicted continue probability
         there (0 is perfect) and the reward error in symlog units."""
@@ -149,7 +185,7 @@ class WorldModel(nn.Module):
             denominator = count.clamp(min=1.0)
             cont = (torch.sigmoid(continue_logits) * terminal).sum() / denominator
             predicted = symlog(self.twohot.mean(reward_logits.float()))
-            error = ((predicted - symlog(batch["reward"].float())).abs() * terminal).sum() / denominator
+            error = ((predicted - symlog(reward_target.float())).abs() * terminal).sum() / denominator
         return {"wm/terminal_steps": count, "wm/terminal_continue": cont, "wm/terminal_reward_error": error}
 
     @staticmethod
