@@ -147,7 +147,6 @@ def main(store_path: str, ref: str, episodes: int = 4, horizon: int = 15) -> Non
     like = assistant.initial_state(1).latent
     x = np.concatenate([r["features"] for r in rows])
     label = np.concatenate([np.full(len(r["features"]), r["label"]) for r in rows])
-    y_hat = np.concatenate([np.asarray(log["y_hat"]) for log in logs])
     gap = np.concatenate([np.asarray(r["gaps"]) for r in rows])
     applied_accel = np.concatenate([np.asarray(log["assistant_action"], np.float32).reshape(-1, 2)[:, ACCEL]
                                     for log in logs])
