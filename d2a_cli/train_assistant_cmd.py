@@ -37,7 +37,8 @@ def train_assistant(
     overrides: SetOpt = None,
     alias: Annotated[bool, typer.Option(
         "--alias/--no-alias", help="Point assistants/<track>/<pair>/<method>/seed<k> (and assistant-runs/...) at "
-                                   "this run; --no-alias for a side run (a sweep, a timing) found by its id.")] = True,
+                                   "this run; --no-alias for a side run (a sweep, a timing), kept as "
+                                   "assistant-runs/<track>/<pair>/<method>/seed<k>/side/<run id>.")] = True,
     *,
     run: RunContext,
 ) -> None:

@@ -20,6 +20,10 @@ def train_humans(
     preset: PresetOpt = "quick",
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,
+    alias: Annotated[bool, typer.Option(
+        "--alias/--no-alias", help="Point humans/<track>/<intent> (and .../expert) at this population; --no-alias "
+                                   "for a side population (another seed, a sweep), kept as "
+                                   "humans/<track>/<intent>/side/<id>.")] = True,
     *,
     run: RunContext,
 ) -> None:
@@ -39,7 +43,7 @@ def train_humans(
         bars = TrainingBars(cleanup, resolved.config.humans.env_steps)
         for name in intent:
             result = train_population(store, track, name, resolved, run.seed, device=run.device,
-                                      progress=bars.reporter(name))
+                                      progress=bars.reporter(name), move_aliases=alias)
             bars.finish(name, result, "population")
             populations.append(result)
 

@@ -79,6 +79,12 @@ def test_a_side_run_with_no_alias_leaves_the_method_and_seed_aliases(cli, traine
     assert not result["cached"] and result["aliases_moved"] == []
     assert [store.resolve(n) for n in names] == before  # still the main run
     assert result["checkpoints"][-1]["id"] not in before and store.get(result["run_id"]).kind == "assistant-run"
+    # kept by its own alias: gc leaves the side run and its checkpoints
+    side_alias = f"assistant-runs/straightaway/pass-stay/dreamer/seed0/side/{result['run_id'][:12]}"
+    assert store.resolve(side_alias) == result["run_id"]
+    assert cli("artifacts", "gc", "--json", store=store_path).code == 0
+    for ref in [result["run_id"], *(c["id"] for c in result["checkpoints"])]:
+        store.get(ref)  # raises if gc removed it
     # the same side run again with the default: the stored result, and now the aliases follow it
     again = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--set", "assistant.log_every=120",
                 "--json", store=store_path)

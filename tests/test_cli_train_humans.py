@@ -268,3 +268,23 @@ def test_the_drivers_world_model_learning_rate_is_their_own(cli, track_store):
         state = torch.load(Store(track_store).path(checkpoint, "agent.pt"), weights_only=False)
         assert state["config"]["model_lr"] == expected
         assert [g["lr"] for g in state["optimizers"]["model"]["param_groups"]] == [expected]
+
+
+def test_a_side_population_leaves_the_intents_aliases_and_survives_gc(cli, fresh_track_store):
+    """`--no-alias` (e.g. another seed's population, for held-out humans): humans/<track>/<intent>
+    keeps pointing at the main population, and the side one, kept by its own `.../side/<id>`
+    alias, survives `d2a artifacts gc` with every checkpoint."""
+    args = ["train-humans", "--intent", "left", "--track", "straightaway", *SMOKE, "--set", "humans.env_steps=240",
+            "--set", "humans.checkpoints=2", "--json"]
+    main = cli(*args, store=fresh_track_store)
+    assert main.code == 0, main.stderr
+    side = cli(*args, "--no-alias", "--seed", "1", store=fresh_track_store)
+    assert side.code == 0, side.stderr
+    store = Store(fresh_track_store)
+    main_id, side_pop = main.json["populations"][0]["id"], side.json["populations"][0]
+    assert side_pop["id"] != main_id and side_pop["aliases_moved"] == []
+    assert store.resolve("humans/straightaway/left") == main_id
+    assert store.resolve(f"humans/straightaway/left/side/{side_pop['id'][:12]}") == side_pop["id"]
+    assert cli("artifacts", "gc", "--json", store=fresh_track_store).code == 0
+    for ref in [side_pop["id"], *(c["id"] for c in side_pop["checkpoints"])]:
+        store.get(ref)  # raises if gc removed it

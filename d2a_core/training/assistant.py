@@ -122,7 +122,8 @@ def train_assistant(store: Store, track_ref: str, pair: str, method_name: str, r
     """Train (or resume, or look up) one assistant; returns its JSON summary. Everything it loads
     and stores is held against `d2a artifacts gc` while it runs (lease) and after it dies (run holds).
     `move_aliases=False` leaves `assistants/...` and `assistant-runs/...` where they point (a side
-    run, e.g. a sweep or a timing, found by its id), so evaluations by method and seed keep theirs."""
+    run, e.g. a sweep or a timing, found by its id or its own `.../side/<run id>` alias), so
+    evaluations by method and seed keep theirs."""
     with store.lease():
         return _train(store, track_ref, pair, method_name, resolved, seed, humans, device, progress, move_aliases)
 
@@ -142,8 +143,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
     cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
     if cached:
-        names = _aliases(bundle.track.name, pair, method.name, seed, cached["id"], cached["run_id"])
-        return dict(cached, aliases_moved=store.point_aliases(names) if move_aliases else [])
+        names = _aliases(bundle.track.name, pair, method.name, seed, cached["id"], cached["run_id"], move_aliases)
+        return dict(cached, aliases_moved=store.point_aliases(names))
 
     if ac.torch_threads:
         torch.set_num_threads(ac.torch_threads)
@@ -275,16 +276,21 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
             writer.note(name, result[name])
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
-    names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id)
-    moved = store.point_aliases(names) if move_aliases else []
+    names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id, move_aliases)
+    moved = store.point_aliases(names)
     state_path.unlink(missing_ok=True)
     store.release_run(key)
     return dict(result, run_id=writer.artifact.id, cached=False, aliases_moved=moved)
 
 
-def _aliases(track: str, pair: str, method: str, seed: int, final_id: str, run_id: str) -> dict[str, str]:
-    """The names a finished assistant run is found by: its final checkpoint and its run record."""
+def _aliases(track: str, pair: str, method: str, seed: int, final_id: str, run_id: str,
+             main: bool = True) -> dict[str, str]:
+    """The names a finished assistant run is found by: its final checkpoint and its run record;
+    a side run (`main=False`) only by its own `assistant-runs/.../seed<k>/side/<run id>`, which
+    keeps it and its checkpoints (the run's inputs) from `d2a artifacts gc`."""
     name = f"{track}/{pair}/{method}/seed{seed}"
+    if not main:
+        return {f"assistant-runs/{name}/side/{run_id[:12]}": run_id}
     return {f"assistants/{name}": final_id, f"assistant-runs/{name}": run_id}
 
 

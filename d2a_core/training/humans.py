@@ -130,17 +130,20 @@ def train_population(
     seed: int,
     device: str = "cpu",
     progress: ProgressFn | None = None,
+    move_aliases: bool = True,
 ) -> dict[str, Any]:
     """Train (or resume, or look up) one intent's population; returns its JSON summary.
 
     Everything the run loads and stores is held against `d2a artifacts gc` while it runs (a store
-    lease), and its saved state's checkpoints after it dies (run holds), until it finishes."""
+    lease), and its saved state's checkpoints after it dies (run holds), until it finishes.
+    `move_aliases=False` leaves `humans/<track>/<intent>` (and its expert) where they point: a side
+    population (another seed, a sweep) is found by its id or `humans/<track>/<intent>/side/<id>`."""
     with store.lease():
-        return _train_population(store, track_ref, intent, resolved, seed, device, progress)
+        return _train_population(store, track_ref, intent, resolved, seed, device, progress, move_aliases)
 
 
 def _train_population(store: Store, track_ref: str, intent: str, resolved: ResolvedConfig, seed: int,
-                      device: str, progress: ProgressFn | None) -> dict[str, Any]:
+                      device: str, progress: ProgressFn | None, move_aliases: bool) -> dict[str, Any]:
     if intent not in INTENTS:
         raise UsageError(f"unknown intent {intent!r}; choose from {', '.join(INTENTS)}")
     cfg = resolved.config
@@ -150,7 +153,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     key = _run_key(bundle, intent, config_record, seed)
     cached = cached_result(store, "population", key, "population.json")
     if cached:
-        names = _aliases(bundle.track.name, intent, cached["id"], cached["expert"])
+        names = _aliases(bundle.track.name, intent, cached["id"], cached["expert"], move_aliases)
         return dict(cached, aliases_moved=store.point_aliases(names))
 
     if hc.torch_threads:
@@ -245,7 +248,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
         writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     population = writer.artifact
-    moved = store.point_aliases(_aliases(bundle.track.name, intent, population.id, expert["id"]))
+    moved = store.point_aliases(_aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases))
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
     state_path.unlink(missing_ok=True)
     snapshots.discard()
@@ -253,8 +256,12 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     return dict(result, id=population.id, cached=False, aliases_moved=moved)
 
 
-def _aliases(track: str, intent: str, population_id: str, expert_id: str) -> dict[str, str]:
-    """The names a finished population is found by: the population and its expert."""
+def _aliases(track: str, intent: str, population_id: str, expert_id: str, main: bool = True) -> dict[str, str]:
+    """The names a finished population is found by: the population and its expert; a side
+    population (`main=False`) only by `humans/<track>/<intent>/side/<id>`, which keeps it and its
+    checkpoints (its inputs) from `d2a artifacts gc`."""
+    if not main:
+        return {f"humans/{track}/{intent}/side/{population_id[:12]}": population_id}
     return {f"humans/{track}/{intent}": population_id, f"humans/{track}/{intent}/expert": expert_id}
 
 
