@@ -160,12 +160,9 @@ def test_reward_relabelling_is_recorded_and_trains_and_a_method_without_intent_h
     assert art.config["dreamer"]["reward_relabel_head"] == "intent"
     curve = store.read_bytes(res.json["assistants"][0]["run_id"], "curve.jsonl").decode().splitlines()
     assert '"wm/reward_relabel_change"' in curve[-1]
-    for method in ("dreamer", "no-rssm", "dream2assist+a-r"):
+    for method in ("dreamer", "no-rssm"):
         args = ("--set", "dreamer.reward_relabel_head=intent")
         res = cli("train-assistant", *PAIR, "--method", method, *SMOKE, *args, "--json", store=store_path)
-        if method == "dream2assist+a-r":  # intent head and the expert-action term: allowed
-            assert res.code == 0, res.stderr
-            continue
         assert res.code == 2 and "dreamer.reward_relabel_head" in res.json["error"]["message"], res.stdout
 
 

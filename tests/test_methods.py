@@ -126,6 +126,21 @@ def test_intent_lr_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_
             get_method(name).configure(fast, PAIR)
 
 
+def test_reward_relabelling_is_for_a_dreamer_intent_head_with_expert_terms_only():
+    base = Config()
+    relabel = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"reward_relabel_head": "intent"})})
+    for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r"):
+        method = get_method(name)
+        assert method.configure(relabel, PAIR).dreamer.reward_relabel_head == "intent"
+        assert method.relabels_reward(relabel) and not method.relabels_reward(base)
+    for name in ("dreamer", "no-rssm"):
+        with pytest.raises(UsageError, match="reward_relabel_head"):
+            get_method(name).configure(relabel, PAIR)
+    other = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"reward_relabel_head": "goal"})})
+    with pytest.raises(UsageError, match="named 'intent'"):
+        get_method("dream2assist").configure(other, PAIR)
+
+
 def test_registering_twice_or_without_entry_point_is_refused():
     with pytest.raises(ValueError, match="already registered"):
         register_method(Method("dreamer", True, 1.0, 1.0, ("env",), "x:Y"))

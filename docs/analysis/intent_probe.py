@@ -20,7 +20,10 @@ from __future__ import annotations
 import itertools
 import sys
 import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sklearn.ensemble import HistGradientBoostingClassifier
@@ -40,9 +43,24 @@ from d2a_core.training.humans import load_human, load_track_bundle
 from intent_from_human_actions import previous_actions  # the sibling script (this folder is on sys.path)
 
 
-def drive(store: Store, ref: str, episodes: int) -> tuple[list[dict], list, list[dict], int]:
-    """The assistant's test humans, assisted, with h recorded at every step: (rows, humans, step
-    logs, the assistant's partner window)."""
+@dataclass
+class AssistantUnderTest:
+    """An assistant checkpoint loaded with what driving its test humans needs."""
+
+    art: Any
+    intents: tuple[str, ...]
+    populations: list  # (id, population.json) per intent, in pair order
+    humans: list  # `d2a eval`'s test humans of both populations
+    make_env: Callable[[], RaceEnv]
+    assistant: Any
+    window: int  # the assistant's partner window
+    obs_space: Any
+    act_space: Any
+
+
+def load_under_test(store: Store, ref: str) -> AssistantUnderTest:
+    """The assistant `ref`, its populations (its inputs), the paper's test humans of them and an
+    env factory with the config it was trained with."""
     art = store.get(ref)
     intents = parse_pair(art.labels["pair"])
     cfg = Config.model_validate({k: art.config[k] for k in ENV_SECTIONS})
@@ -59,10 +77,20 @@ def drive(store: Store, ref: str, episodes: int) -> tuple[list[dict], list, list
     obs_space, act_space = probe.observation_space, probe.action_space
     probe.close()
     assistant, _, _, window = load_assistant(store, art.id, obs_space, act_space)
-    agents = {h.id: load_human(store, h.id, obs_space, act_space, "cpu") for h in humans}
+    return AssistantUnderTest(art, tuple(intents), populations, humans, make_env, assistant, window, obs_space,
+                              act_space)
+
+
+def drive(store: Store, ref: str, episodes: int) -> tuple[list[dict], list, list[dict], int]:
+    """The assistant's test humans, assisted, with h recorded at every step: (rows, humans, step
+    logs, the assistant's partner window)."""
+    under = load_under_test(store, ref)
+    humans, window = under.humans, under.window
+    agents = {h.id: load_human(store, h.id, under.obs_space, under.act_space, "cpu") for h in humans}
     with tempfile.TemporaryDirectory(prefix="d2a-probe-") as tmp:
-        rows, logs = run_specs(panel_specs(humans, episodes, 0), [agents[h.id] for h in humans], intents, make_env,
-                               8, Path(tmp), assistant, record_features=lambda spec: True, partner_window=window)
+        rows, logs = run_specs(panel_specs(humans, episodes, 0), [agents[h.id] for h in humans], under.intents,
+                               under.make_env, 8, Path(tmp), under.assistant, record_features=lambda spec: True,
+                               partner_window=window)
     return rows, humans, logs, window
 
 

@@ -27,15 +27,12 @@ import torch
 from d2a_core.agents.dreamer.agent import PolicyState
 from d2a_core.agents.dreamer.latent import Latent
 from d2a_core.artifacts import Store
-from d2a_core.config.schema import Config
-from d2a_core.evaluation.paired import select_humans
 from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.objectives.assistant import AssistantRewardConfig as RewardConfig
-from d2a_core.pipelines.evaluate import ENV_SECTIONS, panel_specs
+from d2a_core.pipelines.evaluate import panel_specs
 from d2a_core.training.shared_rollout import HumanDrivers, SharedCollector
-from d2a_core.sim.race_env import RaceEnv
-from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
-from d2a_core.training.humans import load_human, load_track_bundle
+from intent_probe import load_under_test  # the sibling script (this folder is on sys.path)
+from d2a_core.training.humans import load_human
 
 ACCEL = 1  # index of the acceleration in the action ([steer, accel])
 SAMPLES = 4  # imagined rollouts per state and throttle (their mean is taken)
@@ -121,26 +118,12 @@ def imagined_return(agent, start: Latent, accel: float, horizon: int, seed: int)
 
 def main(store_path: str, ref: str, episodes: int = 4, horizon: int = 15) -> None:
     store = Store(store_path)
-    art = store.get(ref)
-    intents = parse_pair(art.labels["pair"])
-    cfg = Config.model_validate({k: art.config[k] for k in ENV_SECTIONS})
-    bundle = load_track_bundle(store, art.labels["track"], cfg.env.dt)
-    population_ids = [i for i in art.inputs if store.get(i).kind == "population"]
-    by_intent = {store.read_json(i, "population.json")["intent"]: i for i in population_ids}
-    populations = load_populations(store, bundle, intents, [by_intent[i] for i in intents])
-    humans = [h for label, (_, pop) in enumerate(populations) for h in select_humans(pop, intents[label], label)]
-
-    def make_env() -> RaceEnv:
-        return bundle.env(cfg)
-
-    probe = make_env()
-    obs_space, act_space = probe.observation_space, probe.action_space
-    probe.close()
-    assistant, _, _, window = load_assistant(store, art.id, obs_space, act_space)
-    agents = [load_human(store, h.id, obs_space, act_space, "cpu") for h in humans]
-    expert_ids = [store.read_json(by_intent[i], "population.json")["expert"] for i in intents]
-    expert_agents = [load_human(store, e, obs_space, act_space, "cpu") for e in expert_ids]
-    rows = drive(humans, agents, expert_agents, intents, make_env, RecordingAssistant(assistant), window,
+    under = load_under_test(store, ref)
+    art, intents, humans, assistant, window = under.art, under.intents, under.humans, under.assistant, under.window
+    agents = [load_human(store, h.id, under.obs_space, under.act_space, "cpu") for h in humans]
+    expert_agents = [load_human(store, pop["expert"], under.obs_space, under.act_space, "cpu")
+                     for _, pop in under.populations]
+    rows = drive(humans, agents, expert_agents, intents, under.make_env, RecordingAssistant(assistant), window,
                  RewardConfig(**art.config["assistant"]["reward"]), episodes)
     logs = [r.pop("steps_log") for r in rows]
 
