@@ -48,9 +48,11 @@ def _median_faults(mode: str) -> tuple[str, int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc tuning")
 def test_keep_freed_memory_stops_page_faults_of_training_updates():
     """Untuned, glibc hands the freed top of the heap back to the kernel and an update faults
-    ~10,000-40,000 pages in again (measured: medians 15,000-23,000); tuned, almost none."""
+    ~10,000-40,000 pages in again (measured: medians 11,700-23,000); tuned, almost none (3-40 on an
+    idle machine, once 1,032 beside the rest of the suite): compared with the untuned run, not
+    with a fixed count, which the suite's own load moves."""
     tuned, tuned_faults = _median_faults("tuned")
     assert tuned == "True"
     _, default_faults = _median_faults("default")
-    assert tuned_faults < 1_000
     assert default_faults > 3_000
+    assert tuned_faults < default_faults / 10
