@@ -35,8 +35,8 @@ FINISH_RATE = 0.8
 HOLD_SHARE = 0.7
 EXPERT_RULE = "highest mean return among checkpoints meeting the intent criterion (else highest return)"
 
-__all__ = ["CRITERION_KEY", "CRITERION_METRIC", "EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value", "meets_intent",
-           "performance_fractions"]
+__all__ = ["CRITERION_KEY", "CRITERION_METRIC", "EXPERT_RULE", "HOLD_BEHIND_M", "choose_expert", "criterion_value",
+           "meets_intent", "performance_fractions"]
 
 
 CRITERION_METRIC = {"pass": "finished_ahead", "stay": "finished_never_ahead", "left": "held_left",

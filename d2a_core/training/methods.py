@@ -38,11 +38,12 @@ DREAMER_AGENT = "d2a_core.agents.dreamer.agent:build_assistant"
 _COMMON_SECTIONS = ("env", "reward", "vehicle", "world", "assistant")
 
 INTENT_HEAD_NAME = "intent"
+"""Name of the intent head in the world model (its metrics are `wm/intent_*`) and of the replay
+field that carries the label (the index of the human's intent in the pair)."""
+
 METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads"})
 """Config keys `Method.configure` sets from the method's row (so a record's value there is the
 method's, not a user override)."""
-"""Name of the intent head in the world model (its metrics are `wm/intent_*`) and of the replay
-field that carries the label (the index of the human's intent in the pair)."""
 
 
 @dataclass(frozen=True)
