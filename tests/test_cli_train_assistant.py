@@ -142,28 +142,28 @@ def test_a_partner_window_and_an_embedding_reading_head_are_recorded_and_evaluat
     assert res.code == 0, res.stderr
 
 
-def test_reward_relabelling_is_recorded_and_trains_and_a_method_without_intent_head_refuses_it(
+def test_reward_relabelling_is_recorded_and_trains_and_a_hand_set_learner_key_is_refused(
         cli, pair_store_template, tmp_path):
-    """`dreamer.reward_relabel_head=intent`: recorded in the run's config (absent by default, so
-    older runs keep their keys), the curve shows how much relabelling changed the reward targets,
-    and a method without an intent head or expert terms exits 2 naming the key."""
+    """`assistant.reward_relabel=true`: recorded in the run's config with the learner key it sets
+    (both absent by default, so older runs keep their keys), the curve shows how much relabelling
+    changed the reward targets; `dreamer.reward_relabel_head` set by hand exits 2 naming the
+    assistant's key."""
     from d2a_core.agents.dreamer.config import DreamerConfig
     from d2a_core.config.section import record
 
     assert "reward_relabel_head" not in record(DreamerConfig())
     store_path = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "dreamer.reward_relabel_head=intent",
+    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.reward_relabel=true",
               "--set", "assistant.checkpoints=1", "--json", store=store_path)
     assert res.code == 0, res.stderr
     store = Store(store_path)
     art = store.get(res.json["assistants"][0]["id"])
-    assert art.config["dreamer"]["reward_relabel_head"] == "intent"
+    assert art.config["dreamer"]["reward_relabel_head"] == "intent" and art.config["assistant"]["reward_relabel"]
     curve = store.read_bytes(res.json["assistants"][0]["run_id"], "curve.jsonl").decode().splitlines()
     assert '"wm/reward_relabel_change"' in curve[-1]
-    for method in ("dreamer", "no-rssm"):
-        args = ("--set", "dreamer.reward_relabel_head=intent")
-        res = cli("train-assistant", *PAIR, "--method", method, *SMOKE, *args, "--json", store=store_path)
-        assert res.code == 2 and "dreamer.reward_relabel_head" in res.json["error"]["message"], res.stdout
+    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "dreamer.reward_relabel_head=intent",
+              "--json", store=store_path)
+    assert res.code == 2 and "assistant.reward_relabel" in res.json["error"]["message"], res.stdout
 
 
 def _flat(state, prefix=""):

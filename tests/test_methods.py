@@ -126,19 +126,44 @@ def test_intent_lr_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_
             get_method(name).configure(fast, PAIR)
 
 
+def _assistant(base, **update):
+    return base.model_copy(update={"assistant": base.assistant.model_copy(update=update)})
+
+
 def test_reward_relabelling_is_for_a_dreamer_intent_head_with_expert_terms_only():
     base = Config()
-    relabel = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"reward_relabel_head": "intent"})})
+    relabel = _assistant(base, reward_relabel=True)
     for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r"):
         method = get_method(name)
         assert method.configure(relabel, PAIR).dreamer.reward_relabel_head == "intent"
-        assert method.relabels_reward(relabel) and not method.relabels_reward(base)
+        assert method.relabels_reward(method.configure(relabel, PAIR))
+        assert not method.relabels_reward(method.configure(base, PAIR))
+    # no intent estimate (dreamer) or no world model (no-rssm): nothing to relabel, the key is ignored
     for name in ("dreamer", "no-rssm"):
-        with pytest.raises(UsageError, match="reward_relabel_head"):
-            get_method(name).configure(relabel, PAIR)
-    other = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"reward_relabel_head": "goal"})})
-    with pytest.raises(UsageError, match="named 'intent'"):
-        get_method("dream2assist").configure(other, PAIR)
+        assert get_method(name).configure(relabel, PAIR).dreamer.reward_relabel_head is None
+    # the method sets the learner's key; set by hand it is refused, naming the assistant's key
+    direct = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"reward_relabel_head": "intent"})})
+    for name in ("dream2assist", "dreamer"):
+        with pytest.raises(UsageError, match="assistant.reward_relabel"):
+            get_method(name).configure(direct, PAIR)
+
+
+def test_the_assistants_own_learner_settings_reach_dreamer_methods_only():
+    """`assistant.train_ratio` / `assistant.actor_grad` replace the drivers' `dreamer.*` values in
+    a Dreamer-family assistant's learner; unset, the shared values stay; no-rssm has no such learner."""
+    base = Config()
+    own = _assistant(base, train_ratio=base.dreamer.train_ratio * 2, actor_grad="reinforce")
+    for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer"):
+        dreamer = get_method(name).configure(own, PAIR).dreamer
+        assert (dreamer.train_ratio, dreamer.continuous_actor_grad) == (base.dreamer.train_ratio * 2, "reinforce")
+        assert get_method(name).configure(base, PAIR).dreamer.train_ratio == base.dreamer.train_ratio
+    assert get_method("no-rssm").configure(own, PAIR).dreamer == base.dreamer
+    # with the intent head appended as well
+    assert [h.name for h in get_method("dream2assist").configure(own, PAIR).dreamer.extra_heads] == ["intent"]
+    # unset they stay out of the record, so earlier runs keep their keys
+    from d2a_core.config.section import record
+
+    assert not {"train_ratio", "actor_grad", "reward_relabel"} & set(record(base.assistant))
 
 
 def test_registering_twice_or_without_entry_point_is_refused():

@@ -3,7 +3,8 @@
 Artifacts record their resolved config sections, not the preset's name. A record "is" preset P
 when every value it holds equals P's resolved value (the preset file over the schema defaults);
 values changed with `--set` show up as differences, including values the preset file leaves at
-their defaults (`assistant.partner_window=16` on `quick`). Keys a record lacks are not counted:
+their defaults (`assistant.intent_scale=2` on `quick`). An assistant's `dreamer` section is its
+learner's: it holds the preset's `assistant.train_ratio` / `actor_grad` where those are set. Keys a record lacks are not counted:
 older artifacts predate them, and some keys are recorded only off their default. The keys a
 method sets itself (its reward weights and intent head, `training.methods`) are not differences:
 the report names the method.
@@ -17,19 +18,25 @@ from collections.abc import Iterator, Mapping
 from typing import Any
 
 from d2a_core.config.loader import available_presets
-from d2a_core.training.methods import METHOD_SET_KEYS
+from d2a_core.training.methods import ASSISTANT_DREAMER_KEYS, METHOD_SET_KEYS, assistant_dreamer_overrides
 
 MAX_LISTED = 8
 
 
 @functools.lru_cache(maxsize=None)
-def _preset_values(name: str) -> dict[str, Any]:
+def _preset_values(name: str, assistant: bool = False) -> dict[str, Any]:
+    """The preset's values; for an assistant's record (`assistant`), its `dreamer` section is the
+    assistant's learner, so it holds the preset's `assistant.*` overrides of it."""
     # imported here: the schema pulls in the simulator's configs, which only this needs
     from d2a_core.config.loader import resolve_config
     from d2a_core.config.schema import Config
 
+    config = resolve_config(Config, name).config
+    if assistant:
+        config = config.model_copy(update={"dreamer": config.dreamer.model_copy(
+            update=assistant_dreamer_overrides(config.assistant))})
     # every key, also those a record omits at their default; through JSON, as manifests store it
-    return json.loads(json.dumps(resolve_config(Config, name).as_dict()))
+    return json.loads(json.dumps(config.model_dump(mode="json")))
 
 
 def _leaves(values: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -52,10 +59,13 @@ def _lookup(record: Mapping[str, Any], dotted: str) -> tuple[bool, Any]:
 def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]:
     """(values of the record checked, 'key=recorded value' for each that differs from the preset)."""
     checked, differ = 0, []
-    resolved = _preset_values(preset)
+    resolved = _preset_values(preset, assistant="assistant" in record)
+    # a learner value the record's assistant section sets is named there, not twice
+    assistant = record.get("assistant") or {}
+    derived = {f"dreamer.{target}" for key, target in ASSISTANT_DREAMER_KEYS.items() if assistant.get(key) is not None}
     for key, recorded in _leaves(record):
         found, value = _lookup(resolved, key)
-        if not found or key in METHOD_SET_KEYS:
+        if not found or key in METHOD_SET_KEYS or key in derived:
             continue
         checked += 1
         if recorded != value:

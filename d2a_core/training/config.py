@@ -79,4 +79,23 @@ class AssistantConfig(Section):
                     "world-model rate); intent_scale weighs its loss in the shared representation instead",
     )
 
-    omit_at_default = {"partner_window": 1, "intent_reads": "latent", "intent_lr": None}
+    # The assistant's own DreamerV3 settings where they differ from the drivers' (`dreamer.*`, which
+    # the populations share): a Dreamer-family method's learner takes these (`Method.configure`).
+    train_ratio: Optional[float] = Field(
+        None, gt=0,
+        description="replayed steps per env step of a Dreamer-family assistant (None: dreamer.train_ratio)",
+    )
+    actor_grad: Optional[Literal["backprop", "reinforce"]] = Field(
+        None,
+        description="gradient of a Dreamer-family assistant's continuous actor: backprop through the dynamics "
+                    "or REINFORCE (None: dreamer.continuous_actor_grad)",
+    )
+    reward_relabel: bool = Field(
+        False,
+        description="a method with a Dreamer intent head and expert terms learns each replayed step's reward "
+                    "under its current intent estimate, not the estimate the step was collected with "
+                    "(sets dreamer.reward_relabel_head=intent; methods without both ignore it)",
+    )
+
+    omit_at_default = {"partner_window": 1, "intent_reads": "latent", "intent_lr": None, "train_ratio": None,
+                       "actor_grad": None, "reward_relabel": False}

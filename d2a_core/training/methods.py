@@ -41,9 +41,21 @@ INTENT_HEAD_NAME = "intent"
 """Name of the intent head in the world model (its metrics are `wm/intent_*`) and of the replay
 field that carries the label (the index of the human's intent in the pair)."""
 
-METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads"})
+METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads",
+                             "dreamer.reward_relabel_head"})
 """Config keys `Method.configure` sets from the method's row (so a record's value there is the
 method's, not a user override)."""
+
+ASSISTANT_DREAMER_KEYS = {"train_ratio": "train_ratio", "actor_grad": "continuous_actor_grad"}
+"""`assistant.<key>` -> the `dreamer.<key>` it replaces in a Dreamer-family assistant's learner
+(the `dreamer` section is shared with the populations, so the assistant's own values live here)."""
+
+
+def assistant_dreamer_overrides(assistant: Any) -> dict[str, Any]:
+    """The `dreamer.*` values an `assistant` section sets for a Dreamer-family learner (its keys
+    of `ASSISTANT_DREAMER_KEYS` that are not None)."""
+    return {target: getattr(assistant, key) for key, target in ASSISTANT_DREAMER_KEYS.items()
+            if getattr(assistant, key) is not None}
 
 
 @dataclass(frozen=True)
@@ -89,9 +101,12 @@ class Method:
 
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
-        set, and for a Dreamer-family method with an intent head, an `intent` head over `intents`
-        (weight `assistant.intent_scale`, input `assistant.intent_reads`, learning rate
-        `assistant.intent_lr`) appended to `dreamer.extra_heads`."""
+        set; for a Dreamer-family method, the assistant's own learner settings
+        (`assistant.train_ratio`, `assistant.actor_grad`) in its `dreamer` section; and with an
+        intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
+        `assistant.intent_reads`, learning rate `assistant.intent_lr`) appended to
+        `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
+        is on and the reward has expert terms."""
         _require_implemented(self)
         if len(intents) < 2 or len(set(intents)) != len(intents):
             raise UsageError(f"method {self.name!r}: a pair needs at least two distinct intents, got {list(intents)}")
@@ -102,12 +117,17 @@ class Method:
             if value != assistant.omit_at_default[key] and not dreamer_head:
                 raise UsageError(f"assistant.{key}={value!r} configures a Dreamer intent head; "
                                  f"method {self.name!r} has none")
-        relabel = config.dreamer.reward_relabel_head
-        if relabel is not None and not (dreamer_head and self.uses_experts and relabel == INTENT_HEAD_NAME):
-            raise UsageError(f"dreamer.reward_relabel_head={relabel!r}: method {self.name!r} needs a Dreamer "
-                             f"intent head and expert terms for it, and the head is named {INTENT_HEAD_NAME!r}")
+        if config.dreamer.reward_relabel_head is not None:
+            raise UsageError(f"dreamer.reward_relabel_head={config.dreamer.reward_relabel_head!r}: the method "
+                             "sets it; use assistant.reward_relabel=true")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
+        if self.entry_point == DREAMER_AGENT:
+            learner = assistant_dreamer_overrides(assistant)
+            if dreamer_head and self.uses_experts and assistant.reward_relabel:
+                learner["reward_relabel_head"] = INTENT_HEAD_NAME
+            if learner:
+                update["dreamer"] = config.dreamer.model_copy(update=learner)
         if dreamer_head:
             heads = config.dreamer.extra_heads
             if any(head.name == INTENT_HEAD_NAME for head in heads):
@@ -124,7 +144,7 @@ class Method:
                 options["reads"] = assistant.intent_reads
             head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options,
                               lr=assistant.intent_lr)
-            update["dreamer"] = config.dreamer.model_copy(update={"extra_heads": [*heads, head]})
+            update["dreamer"] = update.get("dreamer", config.dreamer).model_copy(update={"extra_heads": [*heads, head]})
         return config.model_copy(update=update)
 
 
