@@ -7,6 +7,8 @@ warm-up and the world-model and behaviour seconds of each update, per model widt
     python benchmarks/train.py --units 128 512 --updates 5
     python benchmarks/train.py --loop-steps 4000        # the full loop on the straightaway
     python benchmarks/train.py --units 128 --actor-grad backprop reinforce   # both actor gradients
+    python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --imag-starts 256 \
+        --actor-grad backprop reinforce backprop reinforce                  # the `quick` model
 
 `--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
 ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
@@ -52,6 +54,8 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
     config = DreamerConfig(
         units=units,
         deter=deter,
+        stoch=args.latent[0],
+        classes=args.latent[1],
         continuous_actor_grad=actor_grad,
         imag_starts=args.imag_starts,
         precision=args.precision,
@@ -164,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, nargs="+", default=[128, 512], help="MLP widths to time")
     parser.add_argument("--deter", type=int, default=None, help="GRU size (default: same as units)")
+    parser.add_argument("--latent", type=int, nargs=2, default=[32, 32], metavar=("STOCH", "CLASSES"),
+                        help="latent variables x classes (the `quick` preset: 16 16)")
     parser.add_argument("--updates", type=int, default=5, help="timed updates per width")
     parser.add_argument("--warmup", type=int, default=2, help="untimed updates first")
     parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
@@ -194,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         "batch": "16x64",
         "imag_horizon": 15,
         "imag_starts": args.imag_starts or 1024,
+        "latent": args.latent,
         "precision": args.precision,
         "device": args.device,
         "threads": args.threads,
