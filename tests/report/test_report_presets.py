@@ -20,6 +20,15 @@ def test_method_keys_and_keys_the_record_lacks_are_not_differences():
     assert describe({"assistant": {"env_steps": 40000, "some_future_key": 3}}) == "quick"
 
 
+def test_an_assistants_learner_value_set_in_its_assistant_section_is_named_once():
+    """`assistant.train_ratio` sets the assistant's `dreamer.train_ratio` (`Method.configure`): the
+    report names the assistant key, not both; a population's `dreamer` section is the shared one."""
+    record = {"assistant": {"env_steps": 40000, "train_ratio": 128.0}, "dreamer": {"train_ratio": 128.0}}
+    assert describe(record) == "quick, except assistant.train_ratio=128.0"
+    assert describe({"humans": {"env_steps": 40000}, "dreamer": {"train_ratio": 128.0}}) == \
+        "quick, except dreamer.train_ratio=128.0"
+
+
 def test_many_differences_read_as_custom():
     record = {"dreamer": {"train_ratio": 3.0, "batch_size": 3, "batch_length": 3, "units": 3, "layers": 3,
                           "actor_lr": 3.0, "critic_lr": 3.0, "model_lr": 3.0, "imag_horizon": 3}}
