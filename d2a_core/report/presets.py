@@ -4,10 +4,10 @@ Artifacts record their resolved config sections, not the preset's name. A record
 when every value it holds equals P's resolved value (the preset file over the schema defaults);
 values changed with `--set` show up as differences, including values the preset file leaves at
 their defaults (`assistant.intent_scale=2` on `quick`). An assistant's `dreamer` section is its
-learner's: it holds the preset's `assistant.train_ratio` / `actor_grad` where those are set. Keys a record lacks are not counted:
-older artifacts predate them, and some keys are recorded only off their default. The keys a
-method sets itself (its reward weights and intent head, `training.methods`) are not differences:
-the report names the method.
+learner's: it holds the preset's `assistant.train_ratio` / `actor_grad` where those are set.
+Keys a record lacks are not counted: older artifacts predate them, and some keys are recorded
+only off their default. The keys a method sets itself (its reward weights, intent head and
+relabelling, `training.methods`) are not differences: the report names the method.
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]
     resolved = _preset_values(preset, assistant="assistant" in record)
     # a learner value the record's assistant section sets is named there, not twice
     assistant = record.get("assistant") or {}
-    derived = {f"dreamer.{target}" for key, target in ASSISTANT_DREAMER_KEYS.items() if assistant.get(key) is not None}
+    derived = {f"dreamer.{target}" for key, target in ASSISTANT_DREAMER_KEYS.items()
+               if assistant.get(key) is not None}
     for key, recorded in _leaves(record):
         found, value = _lookup(resolved, key)
         if not found or key in METHOD_SET_KEYS or key in derived:
