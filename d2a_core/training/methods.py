@@ -122,12 +122,10 @@ class Method:
                              "sets it; use assistant.reward_relabel=true")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
-        if self.entry_point == DREAMER_AGENT:
-            learner = assistant_dreamer_overrides(assistant)
-            if dreamer_head and self.uses_experts and assistant.reward_relabel:
-                learner["reward_relabel_head"] = INTENT_HEAD_NAME
-            if learner:
-                update["dreamer"] = config.dreamer.model_copy(update=learner)
+        # the Dreamer learner's changes, applied to `dreamer` in one copy at the end
+        learner = assistant_dreamer_overrides(assistant) if self.entry_point == DREAMER_AGENT else {}
+        if dreamer_head and self.uses_experts and assistant.reward_relabel:
+            learner["reward_relabel_head"] = INTENT_HEAD_NAME
         if dreamer_head:
             heads = config.dreamer.extra_heads
             if any(head.name == INTENT_HEAD_NAME for head in heads):
@@ -144,7 +142,9 @@ class Method:
                 options["reads"] = assistant.intent_reads
             head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options,
                               lr=assistant.intent_lr)
-            update["dreamer"] = update.get("dreamer", config.dreamer).model_copy(update={"extra_heads": [*heads, head]})
+            learner["extra_heads"] = [*heads, head]
+        if learner:
+            update["dreamer"] = config.dreamer.model_copy(update=learner)
         return config.model_copy(update=update)
 
 
