@@ -96,7 +96,8 @@ def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistant
     """Trained again in a fresh copy of the same populations: the same checkpoint and run ids
     (timings live in the manifest's provenance, outside the id)."""
     store = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--json", store=store)
+    # another interpreter (its own string-hash seed), not another child of the tests' CLI zygote
+    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--json", store=store, fresh_process=True)
     assert res.code == 0, res.stderr
     again = res.json["assistants"][0]
     before = next(r for r in trained_assistants[1]["assistants"] if r["method"] == "dreamer")

@@ -247,7 +247,9 @@ def test_same_seed_and_config_give_the_same_population_id(cli, track_store, tmp_
     assert first.code == 0, first.stderr
     fresh = tmp_path / "fresh"
     assert cli("make-track", "straightaway", *SMOKE, "--json", store=fresh).code == 0
-    second = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json", store=fresh)
+    # another interpreter (its own string-hash seed), not another child of the tests' CLI zygote
+    second = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json", store=fresh,
+                 fresh_process=True)
     assert second.code == 0, second.stderr
     a, b = first.json["populations"][0], second.json["populations"][0]
     assert not b["cached"] and a["id"] == b["id"]
