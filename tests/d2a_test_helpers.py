@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import fcntl
 import json
 import os
 import select
@@ -14,7 +15,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -105,6 +106,24 @@ def run_cli(*args: str, store: Path | None = None, timeout: float = 300, env: di
     if _zygote is None or _zygote.proc.poll() is not None:
         _zygote = _Zygote()
     return _zygote.run(argv, full_env, timeout)
+
+
+def built_once(tmp_path_factory, name: str, build: Callable[[Path], Any]) -> Any:
+    """`build(directory)`'s JSON-able result, computed once per test session even under
+    pytest-xdist: the first worker to ask builds it in the session's shared temporary directory,
+    the others wait for it (a file lock) and read the stored result. Users must not change what
+    it built (copy it first)."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return build(tmp_path_factory.mktemp(name))
+    shared = tmp_path_factory.getbasetemp().parent  # the session's directory, above every worker's own
+    result = shared / f"{name}.json"
+    with open(shared / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not result.exists():
+            (shared / name).mkdir()
+            value = build(shared / name)
+            result.write_text(json.dumps(value))
+        return json.loads(result.read_text())
 
 
 def copy_store(store: Path, parent: Path) -> Path:

@@ -27,7 +27,7 @@ from d2a_core.pipelines import grid_run
 from d2a_core.pipelines.executors import CellOutcome, plan, prepare
 from d2a_core.pipelines.grid import DepId, GridOptions, dependents, expand
 
-from d2a_test_helpers import REPO, copy_store, run_cli
+from d2a_test_helpers import REPO, built_once, copy_store, run_cli
 
 GRID = ("--preset", "smoke", "--track", "straightaway", "--pair", "pass-stay", "--method", "dreamer")
 ONE_SEED = (*GRID, "--seeds", "1")
@@ -138,13 +138,19 @@ def test_a_cells_key_follows_its_inputs(tmp_path):
 
 
 # --------------------------------------------------------------------------- the smoke grid, local
-@pytest.fixture(scope="module")
-def local_run(tmp_path_factory):
-    store = tmp_path_factory.mktemp("reproduce-local") / "store"
+def _run_local_grid(directory: Path) -> tuple[str, dict, float]:
+    store = directory / "store"
     started = time.monotonic()
     res = reproduce(store, *ONE_SEED, "--jobs", "2")
     assert res.code == 0, res.stdout + res.stderr
-    return store, res.json, time.monotonic() - started
+    return str(store), res.json, time.monotonic() - started
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    """The smoke grid run once per session (shared by the xdist workers); read it or copy it."""
+    store, result, seconds = built_once(tmp_path_factory, "reproduce-local", _run_local_grid)
+    return Path(store), result, seconds
 
 
 def test_smoke_grid_end_to_end_on_the_local_executor(local_run):
@@ -176,8 +182,8 @@ def test_smoke_grid_end_to_end_on_the_local_executor(local_run):
     assert store.verify() == []
 
 
-def test_a_finished_grid_rerun_runs_nothing(local_run):
-    store_dir, first, _ = local_run
+def test_a_finished_grid_rerun_runs_nothing(local_run, tmp_path):
+    store_dir, first = copy_store(local_run[0], tmp_path), local_run[1]
     manifests = sorted((store_dir / "manifests").rglob("*.json"))
     started = time.monotonic()
     res = reproduce(store_dir, *ONE_SEED, "--jobs", "2")
