@@ -3,7 +3,7 @@ call (the test helpers' `run_cli` talks to it; see d2a_test_helpers.py).
 
 Why: every `d2a` call that trains or evaluates spends ~5-6 s of a slow 2-core machine importing
 torch (and torch._dynamo, which the first optimiser step imports), gymnasium and pybullet before
-doing seconds of work; the suite makes ~150 such calls. A forked child starts with those modules
+doing seconds of work; ~60 of the suite's ~180 CLI calls are such calls. A forked child starts with those modules
 loaded and nothing of d2a's own: it imports `d2a_cli`, runs it like `python -m d2a_cli` (fresh
 argv, environment, working directory, stdin/stdout/stderr), and exits with the CLI's code.
 
@@ -14,10 +14,12 @@ Protocol, one JSON object per line: the parent writes {"argv", "env", "cwd", "st
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import sys
 import threading
+import traceback
 
 # Third-party modules only: d2a's own modules (and anything they configure at import) load
 # fresh in each child.
@@ -42,12 +44,12 @@ def _child(request: dict) -> None:
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
-        stdin = os.open(os.devnull, os.O_RDONLY)
-        os.dup2(stdin, 0)
-        for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
-            out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            os.dup2(out, fd)
-            os.close(out)
+        for fd, path, flags in ((0, os.devnull, os.O_RDONLY),
+                                (1, request["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC),
+                                (2, request["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC)):
+            opened = os.open(path, flags, 0o644)
+            os.dup2(opened, fd)
+            os.close(opened)
         sys.stdin = open(0, closefd=False)
         sys.stdout = open(1, "w", closefd=False)
         sys.stderr = open(2, "w", closefd=False)
@@ -58,17 +60,13 @@ def _child(request: dict) -> None:
 
             main()
             code = 0
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-            if exc.code is not None and not isinstance(exc.code, int):
+        except SystemExit as exc:  # the interpreter's rules: None is 0, a message is printed and 1
+            if exc.code is None or isinstance(exc.code, int):
+                code = exc.code or 0
+            else:
                 print(exc.code, file=sys.stderr)
-        except BaseException:  # what the interpreter would print for an uncaught exception
-            import traceback
-
+        except BaseException:  # what the interpreter prints for an uncaught exception
             traceback.print_exc()
-            code = 1
-        import atexit
-
         atexit._run_exitfuncs()
     finally:
         try:

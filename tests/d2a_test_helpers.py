@@ -120,7 +120,7 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], Any]) -> Any
     with open(shared / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not result.exists():
-            (shared / name).mkdir()
+            (shared / name).mkdir(exist_ok=True)  # a worker whose build failed may have left it
             value = build(shared / name)
             result.write_text(json.dumps(value))
         return json.loads(result.read_text())
