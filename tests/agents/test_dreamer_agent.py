@@ -4,6 +4,10 @@ loss handling, extra world-model heads, discrete actions."""
 from __future__ import annotations
 
 import io
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -315,3 +319,49 @@ def test_recency_keys_reach_the_replay_sampler(make_agent, fill_random):
         first_steps[fraction] = np.concatenate(seen)
     assert (first_steps[1.0] == steps - length).all()
     assert (first_steps[0.0] < steps - length).any()
+
+
+def test_loaded_agent_saves_the_optimiser_state_it_loaded(make_agent, fill_random):
+    """The optimisers are built on first use; an agent loaded and saved again without training
+    keeps the loaded Adam moments, and its first update is the original's."""
+    agent = make_agent(seed=0)
+    fill_random(agent, 30)
+    agent.train_step()
+    state = agent.state_dict(include_replay=True)
+    clone = make_agent(seed=7)
+    clone.load_state_dict(state)
+    again = clone.state_dict(include_replay=True)
+    for name in ("model", "actor", "critic"):
+        saved, resaved = state["optimizers"][name]["state"], again["optimizers"][name]["state"]
+        assert saved.keys() == resaved.keys() and saved
+        for index in saved:
+            for key, value in saved[index].items():
+                assert torch.equal(torch.as_tensor(value), torch.as_tensor(resaved[index][key])), (name, index, key)
+    assert agent.train_step()["wm/loss"] == clone.train_step()["wm/loss"]
+
+
+def test_an_agent_that_only_acts_does_not_build_its_optimisers(make_agent, fill_random, tmp_path):
+    """Building torch's Adam imports torch._dynamo (seconds); `d2a eval` loads agents only to act.
+    A trained agent's checkpoint is loaded in a new interpreter and acts there."""
+    trained = make_agent(seed=0, units=16, deter=16)
+    fill_random(trained, 30)
+    trained.train_step()
+    torch.save(trained.state_dict(), tmp_path / "agent.pt")
+    script = textwrap.dedent("""
+        import sys
+        import gymnasium as gym, numpy as np, torch
+        from d2a_core.agents.dreamer import DreamerAgent
+        from tests.agents.conftest import tiny_config
+        agent = DreamerAgent(gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
+                             gym.spaces.Box(-1.0, 1.0, (2,), np.float32), tiny_config(units=16, deter=16), seed=1)
+        agent.load_state_dict(torch.load(sys.argv[1], weights_only=False))
+        agent.policy({"obs": np.zeros((2, 3), np.float32), "is_first": np.ones(2, bool)}, explore=False)
+        print("acting imported torch._dynamo:", "torch._dynamo" in sys.modules)
+        agent.model_opt  # first use builds them
+        print("training imported torch._dynamo:", "torch._dynamo" in sys.modules)
+    """)
+    out = subprocess.run([sys.executable, "-c", script, str(tmp_path / "agent.pt")], capture_output=True, text=True,
+                         timeout=120, cwd=Path(__file__).resolve().parents[2])
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines()[-2:] == ["acting imported torch._dynamo: False",
+                                            "training imported torch._dynamo: True"]

@@ -90,14 +90,47 @@ class DreamerAgent:
             self.world_model = WorldModel(self.obs_size, self.action_size, self.config).to(self.device)
             self.behavior = Behavior(self.action_size, self.discrete, self.config).to(self.device)
         c = self.config
-        self.model_opt = torch.optim.Adam(_model_param_groups(self.world_model, c), lr=c.model_lr, eps=c.model_eps,
-                                          fused=True)
-        self.actor_opt = torch.optim.Adam(self.behavior.actor.parameters(), lr=c.actor_lr, eps=c.actor_eps, fused=True)
-        self.critic_opt = torch.optim.Adam(self.behavior.critic.parameters(), lr=c.critic_lr, eps=c.critic_eps, fused=True)
+        # Built on first use (`_optimizers`): constructing torch's Adam imports torch._dynamo, seconds
+        # that an agent loaded only to act (eval, intent-swap) would pay for nothing.
+        self._built_optimizers: dict[str, torch.optim.Optimizer] | None = None
+        self._pending_optimizer_state: Mapping[str, Any] | None = None
         self.train_generator = torch.Generator(self.device).manual_seed(seed * 3 + 1)
         self.act_generator = torch.Generator(self.device).manual_seed(seed * 3 + 2)
         self.replay = SequenceReplay(c.replay_capacity, seed * 3 + 3)
         self.updates_done = 0
+
+    # --- optimisers
+
+    def _optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """The three Adam optimisers, built when first needed, with any state loaded before then."""
+        if self._built_optimizers is None:
+            c = self.config
+            optimizers = {
+                "model": torch.optim.Adam(_model_param_groups(self.world_model, c), lr=c.model_lr, eps=c.model_eps,
+                                          fused=True),
+                "actor": torch.optim.Adam(self.behavior.actor.parameters(), lr=c.actor_lr, eps=c.actor_eps,
+                                          fused=True),
+                "critic": torch.optim.Adam(self.behavior.critic.parameters(), lr=c.critic_lr, eps=c.critic_eps,
+                                           fused=True),
+            }
+            if self._pending_optimizer_state is not None:
+                for name, optimizer in optimizers.items():
+                    optimizer.load_state_dict(self._pending_optimizer_state[name])
+                self._pending_optimizer_state = None
+            self._built_optimizers = optimizers
+        return self._built_optimizers
+
+    @property
+    def model_opt(self) -> torch.optim.Optimizer:
+        return self._optimizers()["model"]
+
+    @property
+    def actor_opt(self) -> torch.optim.Optimizer:
+        return self._optimizers()["actor"]
+
+    @property
+    def critic_opt(self) -> torch.optim.Optimizer:
+        return self._optimizers()["critic"]
 
     # --- acting
 
@@ -299,11 +332,7 @@ class DreamerAgent:
             "config": self.config.model_dump(mode="json"),
             "world_model": self.world_model.state_dict(),
             "behavior": self.behavior.state_dict(),
-            "optimizers": {
-                "model": self.model_opt.state_dict(),
-                "actor": self.actor_opt.state_dict(),
-                "critic": self.critic_opt.state_dict(),
-            },
+            "optimizers": self._optimizer_state_dicts(),
             "rng": {"train": self.train_generator.get_state(), "act": self.act_generator.get_state()},
             "updates_done": self.updates_done,
         }
@@ -312,6 +341,11 @@ class DreamerAgent:
         else:
             state["replay_rng"] = self.replay.rng.bit_generator.state
         return state
+
+    def _optimizer_state_dicts(self) -> dict[str, Any]:
+        if self._built_optimizers is None and self._pending_optimizer_state is not None:
+            return {name: self._pending_optimizer_state[name] for name in ("model", "actor", "critic")}
+        return {name: optimizer.state_dict() for name, optimizer in self._optimizers().items()}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore a `state_dict` (the network shapes of both configs must agree)."""
@@ -325,9 +359,11 @@ class DreamerAgent:
             )
         self.world_model.load_state_dict(state["world_model"])
         self.behavior.load_state_dict(state["behavior"])
-        self.model_opt.load_state_dict(state["optimizers"]["model"])
-        self.actor_opt.load_state_dict(state["optimizers"]["actor"])
-        self.critic_opt.load_state_dict(state["optimizers"]["critic"])
+        if self._built_optimizers is None:
+            self._pending_optimizer_state = state["optimizers"]  # loaded when the optimisers are built
+        else:
+            for name, optimizer in self._built_optimizers.items():
+                optimizer.load_state_dict(state["optimizers"][name])
         self.train_generator.set_state(state["rng"]["train"])
         self.act_generator.set_state(state["rng"]["act"])
         self.updates_done = int(state["updates_done"])
