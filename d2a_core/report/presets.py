@@ -5,9 +5,10 @@ when every value it holds equals P's resolved value (the preset file over the sc
 values changed with `--set` show up as differences, including values the preset file leaves at
 their defaults (`assistant.intent_scale=2` on `quick`). An assistant's `dreamer` section is its
 learner's: it holds the preset's `assistant.train_ratio` / `actor_grad` where those are set.
-Keys a record lacks are not counted: older artifacts predate them, and some keys are recorded
-only off their default. The keys a method sets itself (its reward weights, intent head and
-relabelling, `training.methods`) are not differences: the report names the method.
+Keys a record leaves out at their neutral value (`Section.omit_at_default`) are compared at that
+value; other keys a record lacks are not counted (older artifacts predate them). The keys a
+method sets itself (its reward weights, intent head and relabelling, `training.methods`) are not
+differences: the report names the method.
 """
 
 from __future__ import annotations
@@ -56,14 +57,35 @@ def _lookup(record: Mapping[str, Any], dotted: str) -> tuple[bool, Any]:
     return True, node
 
 
+def _with_neutral_additions(values: Mapping[str, Any], section: type) -> dict[str, Any]:
+    """`values` (a recorded section) with the keys a record leaves out at their neutral value
+    (`Section.omit_at_default`) put back: such a key is absent because the run used that value,
+    or predates the key and behaved as it does."""
+    from d2a_core.config.section import Section
+
+    filled = dict(values)
+    for name, neutral in section.omit_at_default.items():
+        filled.setdefault(name, neutral)
+    for name, field in section.model_fields.items():
+        kind = field.annotation
+        if isinstance(filled.get(name), Mapping) and isinstance(kind, type) and issubclass(kind, Section):
+            filled[name] = _with_neutral_additions(filled[name], kind)
+    return filled
+
+
 def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]:
     """(values of the record checked, 'key=recorded value' for each that differs from the preset)."""
+    from d2a_core.config.schema import Config
+
     checked, differ = 0, []
     resolved = _preset_values(preset, assistant="assistant" in record)
-    # a learner value the record's assistant section sets is named there, not twice
+    record = _with_neutral_additions(record, Config)
+    # a learner value the record's assistant section sets is named there, not twice; unset, the
+    # learner's own value (its `dreamer` section) is the one compared
     assistant = record.get("assistant") or {}
     derived = {f"dreamer.{target}" for key, target in ASSISTANT_DREAMER_KEYS.items()
                if assistant.get(key) is not None}
+    derived |= {f"assistant.{key}" for key in ASSISTANT_DREAMER_KEYS if assistant.get(key) is None}
     for key, recorded in _leaves(record):
         found, value = _lookup(resolved, key)
         if not found or key in METHOD_SET_KEYS or key in derived:
