@@ -19,6 +19,7 @@ from collections.abc import Iterator, Mapping
 from typing import Any
 
 from d2a_core.config.loader import available_presets
+from d2a_core.config.section import Section
 from d2a_core.training.methods import ASSISTANT_DREAMER_KEYS, METHOD_SET_KEYS, assistant_dreamer_overrides
 
 MAX_LISTED = 8
@@ -61,8 +62,6 @@ def _with_neutral_additions(values: Mapping[str, Any], section: type) -> dict[st
     """`values` (a recorded section) with the keys a record leaves out at their neutral value
     (`Section.omit_at_default`) put back: such a key is absent because the run used that value,
     or predates the key and behaved as it does."""
-    from d2a_core.config.section import Section
-
     filled = dict(values)
     for name, neutral in section.omit_at_default.items():
         filled.setdefault(name, neutral)
