@@ -31,7 +31,8 @@ def train_assistant(
         "--method", help=f"Method to train, repeatable: {', '.join(method_names())}.")] = ["dream2assist"],  # noqa: B006
     humans: Annotated[Optional[list[str]], typer.Option(
         "--humans", help="Population of each intent of the pair, in order (id, prefix or alias) "
-                         "[default: humans/<track>/<intent>].", show_default=False)] = None,
+                         "[default: humans/<track>/<intent>]; several of one intent as A,B (the first is "
+                         "its reference: expert and panel; the others add drivers).", show_default=False)] = None,
     preset: PresetOpt = "quick",
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,

@@ -36,6 +36,7 @@ def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trai
     assert [r["method"] for r in results] == methods
     for r in results:
         assert not r["cached"] and r["pair"] == "pass-stay" and r["populations"] == pops
+        assert set(r["training_episodes"]) == set(pops) and min(r["training_episodes"].values()) > 0
         assert [c["env_step"] for c in r["checkpoints"]] == [120, 240]
         art = store.get(r["id"])
         assert art.kind == "assistant" and art.labels["method"] == r["method"] and art.labels["pair"] == "pass-stay"
@@ -65,6 +66,34 @@ def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trai
     table = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, store=pair_store)
     assert table.code == 0 and "crit. e" in table.stdout and "→" in table.stdout
     assert store.verify() == []
+
+
+def test_several_populations_of_one_intent_train_together(cli, pair_store):
+    """`--humans A,B`: the second pass population's drivers take part in training and the run is
+    traced to it; the first of the list stays the intent's reference (expert, panel)."""
+    store = Store(pair_store)
+    other = cli("train-humans", "--intent", "pass", "--track", "straightaway", *SMOKE, "--set", "humans.checkpoints=2",
+                "--seed", "1", "--no-alias", "--json", store=pair_store)
+    assert other.code == 0, other.stderr
+    pass0, pass1 = store.resolve("humans/straightaway/pass"), other.json["populations"][0]["id"]
+    stay = store.resolve("humans/straightaway/stay")
+    res = cli("train-assistant", *PAIR, "--method", "dreamer", "--humans", f"{pass0},{pass1}", "--humans", stay,
+              *SMOKE, "--set", "assistant.env_steps=480", "--no-alias", "--json", store=pair_store)
+    assert res.code == 0, res.stderr
+    r = res.json["assistants"][0]
+    assert r["populations"] == [pass0, pass1, stay]
+    assert r["training_episodes"][pass1] > 0 and r["training_episodes"][pass0] > 0
+    assert {pass0, pass1, stay} <= set(store.get(r["id"]).inputs)
+    panel_ids = {h["id"] for h in r["panel"]}
+    first = store.read_json(pass0, "population.json")
+    assert first["expert"] in panel_ids
+    assert not panel_ids & {c["id"] for c in other.json["populations"][0]["checkpoints"]}
+    # the same population twice, or an empty entry, is a usage error
+    res = cli("train-assistant", *PAIR, "--humans", f"{pass0},{pass0}", "--humans", stay, *SMOKE, "--json",
+              store=pair_store)
+    assert res.code == 2 and "twice" in res.json["error"]["message"]
+    res = cli("train-assistant", *PAIR, "--humans", f"{pass0},", "--humans", stay, *SMOKE, "--json", store=pair_store)
+    assert res.code == 2 and "empty" in res.json["error"]["message"]
 
 
 def test_a_side_run_with_no_alias_leaves_the_method_and_seed_aliases(cli, trained_assistants, tmp_path):

@@ -1,8 +1,10 @@
 """`train-assistant`: an assistant trained with frozen human populations (paper Algorithm 1, phase 2).
 
-For a pair of intents (`pass-stay`, `left-right`) both populations are frozen. Every episode of
-every env draws an intent uniformly, then a checkpoint of that intent's population (the expert
-included) and an env seed (which draws the opponent replay). Human and assistant drive together
+For a pair of intents (`pass-stay`, `left-right`) the populations are frozen: one per intent, or
+several (`--humans A,B`: populations of other training seeds, fictitious co-play's diversity),
+the first of each intent being its reference (expert, panel). Every episode of every env draws an
+intent uniformly, then a checkpoint of that intent's populations (the experts included) and an
+env seed (which draws the opponent replay). Human and assistant drive together
 (`training.shared_rollout`); the assistant learns on its own reward (equation 6, made in this
 process from the env's `r^task`, its action and, for the Dream2Assist methods, the experts of
 the pair filtered along every episode). What the method changes (intent head, reward weights,
@@ -68,30 +70,58 @@ def parse_pair(pair: str) -> tuple[str, str]:
 
 
 def load_populations(store: Store, bundle: TrackBundle, intents: Sequence[str],
-                      refs: Sequence[str] | None) -> list[tuple[str, dict[str, Any]]]:
+                     refs: Sequence[str] | None) -> list[tuple[str, dict[str, Any]]]:
     """(id, population.json) per intent of the pair, from `refs` or the default aliases."""
     if refs is not None and len(refs) != len(intents):
         raise UsageError(f"--humans takes one population per intent of the pair ({len(intents)}), got {len(refs)}")
     out = []
     for k, intent in enumerate(intents):
         ref = refs[k] if refs is not None else f"humans/{bundle.track.name}/{intent}"
-        try:
-            art = store.get(ref)
-        except NotFoundError:
-            raise NotFoundError(
-                f"no population {ref!r} in store {store.root}; make it with: "
-                f"d2a train-humans --intent {intent} --track {bundle.track.name}") from None
-        if art.kind != "population":
-            raise UsageError(f"{ref} is a {art.kind} artifact, not a population")
-        pop = store.read_json(art.id, "population.json")
-        if pop["intent"] != intent:
-            raise UsageError(f"population {ref} is of intent {pop['intent']!r}, not {intent!r} "
-                             f"(--humans lists the pair's populations in order)")
-        if pop["track_id"] != bundle.track_id:
-            raise UsageError(f"population {ref} was trained on track {pop['track_id'][:12]}, not "
-                             f"{bundle.track.name} ({bundle.track_id[:12]})")
-        out.append((art.id, pop))
+        if "," in ref:
+            raise UsageError(f"--humans {ref}: one population per intent here (only train-assistant trains with several)")
+        out.append(_load_population(store, bundle, intent, ref))
     return out
+
+
+def load_population_groups(store: Store, bundle: TrackBundle, intents: Sequence[str],
+                           refs: Sequence[str] | None) -> list[list[tuple[str, dict[str, Any]]]]:
+    """The populations of each intent of the pair: `refs[k]` is one ref or a comma-separated list
+    (fictitious co-play over several training seeds, for partners more diverse than one run's
+    checkpoints). The first of each list is the intent's reference population: its expert
+    filters the reward and its humans form the evaluation panel; the others add drivers."""
+    if refs is not None and len(refs) != len(intents):
+        raise UsageError(f"--humans takes one population per intent of the pair ({len(intents)}), got {len(refs)} "
+                         "(several populations of one intent go in one entry: --humans A,B)")
+    groups = []
+    for k, intent in enumerate(intents):
+        names = [r.strip() for r in refs[k].split(",")] if refs is not None else [f"humans/{bundle.track.name}/{intent}"]
+        if not all(names):
+            raise UsageError(f"--humans {refs[k]!r}: an empty population ref in the list")  # type: ignore[index]
+        group = [_load_population(store, bundle, intent, name) for name in names]
+        ids = [pid for pid, _ in group]
+        if len(set(ids)) < len(ids):
+            raise UsageError(f"--humans {refs[k]!r} lists one {intent} population twice")  # type: ignore[index]
+        groups.append(group)
+    return groups
+
+
+def _load_population(store: Store, bundle: TrackBundle, intent: str, ref: str) -> tuple[str, dict[str, Any]]:
+    try:
+        art = store.get(ref)
+    except NotFoundError:
+        raise NotFoundError(
+            f"no population {ref!r} in store {store.root}; make it with: "
+            f"d2a train-humans --intent {intent} --track {bundle.track.name}") from None
+    if art.kind != "population":
+        raise UsageError(f"{ref} is a {art.kind} artifact, not a population")
+    pop = store.read_json(art.id, "population.json")
+    if pop["intent"] != intent:
+        raise UsageError(f"population {ref} is of intent {pop['intent']!r}, not {intent!r} "
+                         f"(--humans lists the pair's populations in order)")
+    if pop["track_id"] != bundle.track_id:
+        raise UsageError(f"population {ref} was trained on track {pop['track_id'][:12]}, not "
+                         f"{bundle.track.name} ({bundle.track_id[:12]})")
+    return art.id, pop
 
 
 def _run_key(bundle: TrackBundle, population_ids: Sequence[str], pair: str, method: str,
@@ -136,8 +166,10 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     cfg = method.configure(resolved.config, intents)
     ac = cfg.assistant
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
-    populations = load_populations(store, bundle, intents, humans_refs)
-    population_ids = [pid for pid, _ in populations]
+    groups = load_population_groups(store, bundle, intents, humans_refs)
+    # each intent's reference population (its expert, the panel); with one per intent, all of them
+    populations = [group[0] for group in groups]
+    population_ids = [pid for group in groups for pid, _ in group]
     # the sections the method depends on, as patched by the method (intent head, reward weights)
     config_record = {name: record(getattr(cfg, name)) for name in method.config_sections}
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
@@ -155,9 +187,14 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
 
     envs = [make_env() for _ in range(ac.num_envs)]
     obs_space, act_space = envs[0].observation_space, envs[0].action_space
-    # every checkpoint of both populations, in pair order; labels are the intents' indices
-    human_ids = [c["id"] for _, pop in populations for c in pop["checkpoints"]]
-    human_labels = [k for k, (_, pop) in enumerate(populations) for _ in pop["checkpoints"]]
+    # every checkpoint of every population, in pair order; labels are the intents' indices
+    human_ids, human_labels, human_population = [], [], []
+    for k, group in enumerate(groups):
+        for pid, pop in group:
+            for c in pop["checkpoints"]:
+                human_ids.append(c["id"])
+                human_labels.append(k)
+                human_population.append(population_ids.index(pid))
     human_agents = [load_human(store, hid, obs_space, act_space, device) for hid in human_ids]
     by_id = dict(zip(human_ids, human_agents))
     expert_agents = [by_id[pop["expert"]] for _, pop in populations]
@@ -170,12 +207,14 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     run_dir.mkdir(parents=True, exist_ok=True)
     state_path = run_dir / "state.pt"
     env_steps, checkpoints, curve, resumed_from, unassisted = 0, [], [], None, None
+    drawn = [0] * len(population_ids)  # finished training episodes driven by each population's humans
     timer = _Timer()
     if state_path.is_file():
         saved = torch.load(state_path, map_location=device, weights_only=False)
         agent.load_state_dict(saved["agent"])
         env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
         unassisted, timer.seconds = saved["unassisted"], saved["timing"]
+        drawn = saved.get("drawn", drawn)
         try:
             store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
         except NotFoundError as exc:
@@ -221,7 +260,10 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     start_time, start_updates = time.monotonic(), agent.updates_done if hasattr(agent, "updates_done") else 0
     try:
         while pending:
-            recent.extend(collector.step(explore=True, learn=True))
+            finished = collector.step(explore=True, learn=True)
+            for row in finished:
+                drawn[human_population[row["human"]]] += 1
+            recent.extend(finished)
             env_steps += collector.n
             started = time.perf_counter()
             for _ in range(agent.updates_due(env_steps)):
@@ -251,7 +293,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
                 collector.timing.clear()
                 save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
                              "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve,
-                             "unassisted": unassisted, "timing": timer.seconds}, state_path)
+                             "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn}, state_path)
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
             if checkpoints else ""
@@ -264,6 +306,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
     result = {"method": method.name, "track": bundle.track.name, "track_id": bundle.track_id, "pair": pair,
               "intents": list(intents), "seed": seed, "id": final["id"], "populations": population_ids,
+              "training_episodes": dict(zip(population_ids, drawn)),
               "panel": [vars(h) for h in the_panel], "checkpoints": checkpoints,
               "time_shares": timer.shares(), "time_s": {k: round(v, 3) for k, v in timer.seconds.items()},
               "training_code_version": TRAINING_CODE_VERSION, "runtime": runtime,
