@@ -81,8 +81,11 @@ def reproduce(
         "--method", help="Assistant method (repeatable) [default: every implemented method].",
         show_default=False)] = None,
     seeds: Annotated[int, typer.Option("--seeds", min=1, help="Assistant training seeds 0 .. N-1 per method.")] = 3,
-    humans_seed: Annotated[int, typer.Option(
-        "--humans-seed", help="Seed of the one population per intent that every assistant seed trains with.")] = 0,
+    humans_seeds: Annotated[Optional[list[int]], typer.Option(
+        "--humans-seed", help="Seed of the population per intent that every assistant seed trains with; "
+                              "repeat it to train on several populations per intent (the first is the "
+                              "reference: its aliases, expert and panel; evaluation uses it) [default: 0].",
+        show_default=False)] = None,
     preset: PresetOpt = "quick",
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,
@@ -119,7 +122,7 @@ def reproduce(
     store_path = absolute_store(run.store_path)
     config_path = str(Path(config_file).absolute()) if config_file else None
     cells = expand(GridOptions(preset=preset, tracks=tracks or ["straightaway"], pairs=pairs or ["pass-stay"],
-                               methods=methods, seeds=seeds, humans_seed=humans_seed, overrides=overrides or [],
+                               methods=methods, seeds=seeds, humans_seeds=humans_seeds or [0], overrides=overrides or [],
                                config_file=config_path, episodes=episodes, trials=trials))
     cores = _cores()
     jobs = jobs or max(1, cores // threads)

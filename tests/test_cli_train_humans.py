@@ -285,6 +285,10 @@ def test_a_side_population_leaves_the_intents_aliases_and_survives_gc(cli, fresh
     store = Store(fresh_track_store)
     main_id, side_pop = main.json["populations"][0]["id"], side.json["populations"][0]
     assert side_pop["id"] != main_id and side_pop["aliases_moved"] == []
+    # the JSON names what finds each population: the main one by the intent's aliases, the side one by its own
+    assert main.json["populations"][0]["aliases"] == {"humans/straightaway/left": main_id,
+                                                     "humans/straightaway/left/expert": main.json["populations"][0]["expert"]}
+    assert side_pop["aliases"] == {f"humans/straightaway/left/side/{side_pop['id'][:12]}": side_pop["id"]}
     assert store.resolve("humans/straightaway/left") == main_id
     assert store.resolve(f"humans/straightaway/left/side/{side_pop['id'][:12]}") == side_pop["id"]
     assert cli("artifacts", "gc", "--json", store=fresh_track_store).code == 0

@@ -25,7 +25,7 @@ from d2a_core.artifacts import Store
 from d2a_core.errors import UsageError
 from d2a_core.pipelines import grid_run
 from d2a_core.pipelines.executors import CellOutcome, plan, prepare
-from d2a_core.pipelines.grid import DepId, GridOptions, dependents, expand
+from d2a_core.pipelines.grid import DepId, DepIds, GridOptions, dependents, expand
 
 from d2a_test_helpers import REPO, built_once, copy_store, run_cli
 
@@ -44,7 +44,7 @@ def by_name(result: dict) -> dict[str, dict]:
 # --------------------------------------------------------------------------- expansion (no training)
 def test_grid_expands_in_dependency_order_with_the_subcommands_argv():
     cells = expand(GridOptions(preset="smoke", tracks=["straightaway", "hairpin"], pairs=["pass-stay", "left-right"],
-                               methods=["dreamer", "dream2assist"], seeds=2, humans_seed=3,
+                               methods=["dreamer", "dream2assist"], seeds=2, humans_seeds=[3],
                                overrides=["humans.checkpoints=4", "train-assistant/*/seed1:assistant.env_steps=480"]))
     kinds = [c.kind for c in cells]
     assert kinds.count("make-track") == 2
@@ -135,6 +135,50 @@ def test_a_cells_key_follows_its_inputs(tmp_path):
     # nothing stored: every cell pending, and a dry run writes nothing
     assert {o.status for o in plan(cells, Store(tmp_path / "none"))} == {"pending"}
     assert not (tmp_path / "none").exists()
+
+
+def test_several_humans_seeds_train_every_assistant_on_all_their_populations():
+    """`--humans-seed 0 --humans-seed 2`: the first seed's populations stay the reference (aliases,
+    evaluation), the others are side populations, and every assistant gets all of an intent's
+    populations in one `--humans A,B`, its reference first."""
+    cells = expand(GridOptions(preset="smoke", methods=["dreamer"], seeds=1, humans_seeds=[0, 2]))
+    cell = {c.name: c for c in cells}
+    ref, side = cell["train-humans/straightaway/pass/seed0"], cell["train-humans/straightaway/pass/seed2"]
+    assert "--no-alias" not in ref.argv and ref.artifact == "humans/straightaway/pass"
+    assert side.argv[7] == "--no-alias"
+    assert side.argv[:7] == ("train-humans", "--intent", "pass", "--track", "straightaway", "--seed", "2")
+    assert side.artifact == "humans/straightaway/pass/side"
+    a = cell["train-assistant/straightaway/pass-stay/dreamer/seed0"]
+    assert a.argv[7:11] == (
+        "--humans", DepIds((DepId("train-humans/straightaway/pass/seed0", "humans/straightaway/pass"),
+                            DepId("train-humans/straightaway/pass/seed2", None))),
+        "--humans", DepIds((DepId("train-humans/straightaway/stay/seed0", "humans/straightaway/stay"),
+                            DepId("train-humans/straightaway/stay/seed2", None))))
+    assert set(a.deps) == {f"train-humans/straightaway/{i}/seed{h}" for i in ("pass", "stay") for h in (0, 2)}
+    ev = cell["eval/straightaway/pass-stay"]
+    assert dict(ev.expects) == {f"humans/straightaway/{i}": DepId(f"train-humans/straightaway/{i}/seed0",
+                                                                  f"humans/straightaway/{i}") for i in ("pass", "stay")}
+
+    # the side cells' results name their own alias; the assistant gets "ref,side" per intent
+    outcomes = {c.name: CellOutcome(c) for c in cells}
+    for intent, h, pop in (("pass", 0, "p"), ("pass", 2, "q"), ("stay", 0, "s"), ("stay", 2, "t")):
+        aliases = ({f"humans/straightaway/{intent}": pop * 64, f"humans/straightaway/{intent}/expert": "e" * 64}
+                   if h == 0 else {f"humans/straightaway/{intent}/side/{pop * 12}": pop * 64})
+        result = {"populations": [{"track": "straightaway", "intent": intent, "id": pop * 64, "aliases": aliases}]}
+        ids, main = grid_run.produced("train-humans", result)
+        assert ids == aliases and main == pop * 64
+        o = outcomes[f"train-humans/straightaway/{intent}/seed{h}"]
+        o.ids, o.id = ids, main
+    argv, expects, _ = prepare(a, outcomes, {})
+    assert argv[7:11] == ["--humans", "p" * 64 + "," + "q" * 64, "--humans", "s" * 64 + "," + "t" * 64]
+    assert prepare(ev, outcomes, {})[1] == {"humans/straightaway/pass": "p" * 64, "humans/straightaway/stay": "s" * 64}
+    assert str(a.argv[8]) == "<id of humans/straightaway/pass>,<id of train-humans/straightaway/pass/seed2>"
+
+    with pytest.raises(UsageError, match="distinct"):
+        expand(GridOptions(preset="smoke", methods=["dreamer"], humans_seeds=[1, 1]))
+    # one seed: the grid of before, cell for cell
+    assert [c.argv for c in expand(GridOptions(preset="smoke", methods=["dreamer"], humans_seeds=[0]))] == \
+        [c.argv for c in expand(GridOptions(preset="smoke", methods=["dreamer"]))]
 
 
 # --------------------------------------------------------------------------- the smoke grid, local

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 
 from d2a_core.errors import StoreError, UsageError
 from d2a_core.pipelines import grid_run
-from d2a_core.pipelines.grid import Cell, DepId
+from d2a_core.pipelines.grid import Cell, DepId, DepIds
 from d2a_core.pipelines.grid_run import CellSpec
 
 
@@ -235,15 +235,29 @@ class RunOptions:
     poll_s: float = 0.5
 
 
+def _dep_id(ref: DepId, outcomes: dict[str, CellOutcome]) -> str:
+    done = outcomes[ref.cell]
+    art_id = done.ids[ref.alias] if ref.alias is not None else done.id
+    if art_id is None:
+        raise AssertionError(f"grid cell {ref.cell} finished without an artifact id")
+    return art_id
+
+
 def _fill(cell: Cell, outcomes: dict[str, CellOutcome]) -> list[str]:
-    return [outcomes[a.cell].ids[a.alias] if isinstance(a, DepId) else a for a in cell.argv]
+    def one(a) -> str:
+        if isinstance(a, DepId):
+            return _dep_id(a, outcomes)
+        if isinstance(a, DepIds):
+            return ",".join(_dep_id(r, outcomes) for r in a.refs)
+        return a
+    return [one(a) for a in cell.argv]
 
 
 def prepare(cell: Cell, outcomes: dict[str, CellOutcome],
             fingerprints: dict[Any, str]) -> tuple[list[str], dict[str, str], str]:
     """(argv, expected aliases, key) of a cell whose dependencies have finished."""
     argv = _fill(cell, outcomes)
-    expects = {alias: outcomes[ref.cell].ids[ref.alias] for alias, ref in cell.expects}
+    expects = {alias: _dep_id(ref, outcomes) for alias, ref in cell.expects}
     fingerprint = None
     if cell.config is not None:
         if cell.config not in fingerprints:

@@ -10,18 +10,23 @@ Cells, in dependency order:
 
 - `make-track/<track>`: `d2a make-track <track> --preset P --seed 0`, per track;
 - `train-humans/<track>/<intent>/seed<H>`: `d2a train-humans --intent I --track T --preset P
-  --seed H`, once per (track, intent) of the grid's pairs, H = `humans_seed` (default 0);
+  --seed H`, per (track, intent) of the grid's pairs and per H of `humans_seeds` (default 0); the
+  first seed's population is the intent's reference (`humans/<track>/<intent>`), the others
+  train with `--no-alias` (side populations, `humans/<track>/<intent>/side/<id>`);
 - `train-assistant/<track>/<pair>/<method>/seed<k>`: `d2a train-assistant --track T --pair P
   --method M --humans <pop a> --humans <pop b> --preset P --seed k`, k = 0 .. seeds-1, the
-  populations given by id (taken from the train-humans cells' results when the cell starts);
+  populations given by id (taken from the train-humans cells' results when the cell starts); with
+  several humans seeds, `--humans <ref a>,<side a>,...` per intent;
 - `eval/<track>/<pair>`: `d2a eval --track T --pair P --method M0 --baseline M1 ... --seed 0 ...
   --seed S-1 --episodes E --eval-seed 0 --envs N`, over every method and seed of the pair;
 - `intent-swap/<track>/<pair>`: `d2a intent-swap ...` likewise (`--trials`);
 - `report`: `d2a report --track T ... --pair P ...`, after everything.
 
 How seeds and populations map: every assistant seed of a (track, pair) trains with the *same*
-two populations (one per intent, trained with seed `humans_seed`), as the paper's protocol
-freezes one population per intent; the seeds of a grid are assistant training seeds. Reasons:
+populations (by default one per intent, trained with seed 0), as the paper's protocol freezes
+one population per intent; the seeds of a grid are assistant training seeds. Several
+`humans_seeds` train every assistant on several populations per intent (the first of each is
+the reference: its expert and panel are the assistant's, and evaluation uses it). Reasons:
 `eval` and `intent-swap` take one population per intent for all seeds they evaluate, and the
 report counts an evaluation made with `--humans` as one on *held-out* humans (its alias gets a
 `/humans-<ids>` suffix), so evaluation must use the populations behind the
@@ -69,17 +74,25 @@ MAIN_METHOD = "dream2assist"
 
 @dataclass(frozen=True)
 class DepId:
-    """An argv placeholder: the artifact id that dependency `cell` yielded under `alias`,
-    filled in when the cell starts (dry runs show it as `<id of ALIAS>`)."""
+    """An argv placeholder: the artifact id that dependency `cell` yielded under `alias` (None: the
+    cell's main artifact, e.g. a side population, whose alias holds its own id), filled in when
+    the cell starts (dry runs show it as `<id of ALIAS>`)."""
 
     cell: str
-    alias: str
+    alias: str | None
 
     def __str__(self) -> str:
-        return f"<id of {self.alias}>"
+        return f"<id of {self.alias or self.cell}>"
 
 
-Arg = Union[str, DepId]
+@dataclass(frozen=True)
+class DepIds:
+    """An argv placeholder: several dependencies' artifact ids joined by commas (`--humans A,B`)."""
+
+    refs: tuple[DepId, ...]
+
+    def __str__(self) -> str:
+        return ",".join(str(r) for r in self.refs)
 
 
 @dataclass(frozen=True)
@@ -119,7 +132,8 @@ class GridOptions:
     methods: Sequence[str] | None = None
     """None: every implemented method."""
     seeds: int = 1
-    humans_seed: int = 0
+    humans_seeds: Sequence[int] = (0,)
+    """Seeds of each intent's populations; the first is the reference (aliases, evaluation)."""
     overrides: Sequence[str] = ()
     config_file: str | None = None
     episodes: int | None = None
@@ -168,6 +182,9 @@ def expand(opts: GridOptions) -> list[Cell]:
         raise UsageError(f"unknown preset {opts.preset!r}; choose from {', '.join(available_presets())}")
     if opts.seeds < 1:
         raise UsageError(f"--seeds must be at least 1, got {opts.seeds}")
+    humans_seeds = list(opts.humans_seeds)
+    if not humans_seeds or len(set(humans_seeds)) != len(humans_seeds):
+        raise UsageError(f"--humans-seed: give one or more distinct seeds, got {humans_seeds}")
     tracks = _unique(opts.tracks)
     pairs = _unique(opts.pairs)
     if not tracks or not pairs:
@@ -211,16 +228,29 @@ def expand(opts: GridOptions) -> list[Cell]:
     for track in tracks:
         track_cell = add(f"make-track/{track}", "make-track", ["make-track", track, "--seed", "0"], [],
                          f"track/{track}")
-        humans: dict[str, tuple[str, str]] = {}  # intent -> (cell name, alias)
+        humans: dict[str, tuple[str, str]] = {}  # intent -> (reference cell name, alias)
+        sides: dict[str, list[DepId]] = {}  # intent -> the side populations' ids
         for intent in _unique([i for pair in pairs for i in intents_of[pair]]):
             alias = f"humans/{track}/{intent}"
-            cell = add(f"train-humans/{track}/{intent}/seed{opts.humans_seed}", "train-humans",
-                       ["train-humans", "--intent", intent, "--track", track, "--seed", str(opts.humans_seed)],
-                       [track_cell.name], alias)
-            humans[intent] = (cell.name, alias)
+            for k, hseed in enumerate(humans_seeds):
+                argv: list[Arg] = ["train-humans", "--intent", intent, "--track", track, "--seed", str(hseed)]
+                if k == 0:
+                    cell = add(f"train-humans/{track}/{intent}/seed{hseed}", "train-humans", argv,
+                               [track_cell.name], alias)
+                    humans[intent] = (cell.name, alias)
+                else:
+                    cell = add(f"train-humans/{track}/{intent}/seed{hseed}", "train-humans",
+                               [*argv, "--no-alias"], [track_cell.name], f"{alias}/side")
+                    sides.setdefault(intent, []).append(DepId(cell.name, None))
         for pair in pairs:
-            pops = [humans[i] for i in intents_of[pair]]
-            pop_args: list[Arg] = [a for name, alias in pops for a in ("--humans", DepId(name, alias))]
+            intents = intents_of[pair]
+            pops = [humans[i] for i in intents]
+            pop_args: list[Arg] = []
+            for intent, (name, alias) in zip(intents, pops):
+                refs = (DepId(name, alias), *sides.get(intent, []))
+                pop_args += ["--humans", refs[0] if len(refs) == 1 else DepIds(refs)]
+            pop_cells = [ref.cell for i in intents for ref in
+                         (DepId(humans[i][0], humans[i][1]), *sides.get(i, []))]
             expects = [(alias, DepId(name, alias)) for name, alias in pops]
             assistants = []
             for method in methods:
@@ -228,11 +258,11 @@ def expand(opts: GridOptions) -> list[Cell]:
                     cell = add(f"train-assistant/{track}/{pair}/{method}/seed{seed}", "train-assistant",
                                ["train-assistant", "--track", track, "--pair", pair, "--method", method,
                                 *pop_args, "--seed", str(seed)],
-                               [name for name, _ in pops], f"assistants/{track}/{pair}/{method}/seed{seed}")
+                               pop_cells, f"assistants/{track}/{pair}/{method}/seed{seed}")
                     assistants.append(cell.name)
             which = ["--track", track, "--pair", pair, "--method", main,
                      *(a for m in others for a in ("--baseline", m)), *(a for s in seeds for a in ("--seed", str(s)))]
-            deps = [*assistants, *(name for name, _ in pops)]
+            deps = [*assistants, *pop_cells]
             evals.append(add(f"eval/{track}/{pair}", "eval",
                              ["eval", *which, "--episodes", str(episodes), "--eval-seed", str(opts.eval_seed),
                               "--envs", str(envs)], deps, f"eval/{track}/{pair}", expects).name)

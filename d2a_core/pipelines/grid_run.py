@@ -141,8 +141,9 @@ def produced(kind: str, result: dict[str, Any]) -> tuple[dict[str, str], str | N
         ids[result["alias"]] = main = result["id"]
     elif kind == "train-humans":
         for p in result["populations"]:
-            ids[f"humans/{p['track']}/{p['intent']}"] = main = p["id"]
-            ids[f"humans/{p['track']}/{p['intent']}/expert"] = p["expert"]
+            # the intent's aliases, or a side population's own (`--no-alias`)
+            ids.update(p["aliases"])
+            main = p["id"]
     elif kind == "train-assistant":
         for a in result["assistants"]:
             name = f"{a['track']}/{a['pair']}/{a['method']}/seed{a['seed']}"

@@ -154,7 +154,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     cached = cached_result(store, "population", key, "population.json")
     if cached:
         names = _aliases(bundle.track.name, intent, cached["id"], cached["expert"], move_aliases)
-        return dict(cached, aliases_moved=store.point_aliases(names))
+        return dict(cached, aliases=names, aliases_moved=store.point_aliases(names))
 
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
@@ -248,12 +248,13 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
         writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     population = writer.artifact
-    moved = store.point_aliases(_aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases))
+    names = _aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases)
+    moved = store.point_aliases(names)
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
     state_path.unlink(missing_ok=True)
     snapshots.discard()
     store.release_run(key)
-    return dict(result, id=population.id, cached=False, aliases_moved=moved)
+    return dict(result, id=population.id, cached=False, aliases=names, aliases_moved=moved)
 
 
 def _aliases(track: str, intent: str, population_id: str, expert_id: str, main: bool = True) -> dict[str, str]:
