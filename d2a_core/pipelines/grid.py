@@ -95,6 +95,9 @@ class DepIds:
         return ",".join(str(r) for r in self.refs)
 
 
+Arg = Union[str, DepId, DepIds]
+
+
 @dataclass(frozen=True)
 class Cell:
     """One subcommand invocation of the grid."""
