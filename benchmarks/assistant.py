@@ -21,7 +21,10 @@ import os
 import platform
 import time
 
-import torch
+from d2a_core import mkl_on_amd
+
+mkl_on_amd.enable()  # before torch loads MKL (D2A_MKL_AMD=0 measures without it)
+import torch  # noqa: E402
 
 from d2a_core import config as config_mod
 from d2a_core.artifacts import Store
@@ -59,7 +62,8 @@ def main() -> None:
         "loop_shares": {k: round(v / loop_total, 4) for k, v in sorted(loop.items())},
         "acting_and_expert_filtering_share": round(acting / loop_total, 4),
         "collection_env_steps_per_s": round(args.steps / max(loop_total - loop.get("learning", 0.0), 1e-9), 1),
-        "time_s": seconds, "torch_threads": torch.get_num_threads(), "machine": platform.machine(),
+        "time_s": seconds, "torch_threads": torch.get_num_threads(),
+        "mkl_on_amd": mkl_on_amd.status(), "machine": platform.machine(),
         "cpus": os.cpu_count(),
     }, indent=2))
 

@@ -26,7 +26,11 @@ import resource
 import time
 
 import numpy as np
-import torch
+
+from d2a_core import mkl_on_amd
+
+mkl_on_amd.enable()  # as the d2a command line does, before torch loads MKL
+import torch  # noqa: E402
 
 from d2a_core.artifacts import Store
 from d2a_core.pipelines.evaluate import evaluate

@@ -27,7 +27,11 @@ import time
 
 import gymnasium as gym
 import numpy as np
-import torch
+
+from d2a_core import mkl_on_amd
+
+mkl_on_amd.enable()  # before torch loads MKL (D2A_MKL_AMD=0 measures without it)
+import torch  # noqa: E402
 
 from d2a_core.agents.dreamer import DreamerAgent, DreamerConfig
 from d2a_core.training.allocator import keep_freed_memory
@@ -189,7 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     malloc_tuned = False if args.default_malloc else keep_freed_memory()
     if args.loop_steps:
         report = {**full_loop(args), "precision": args.precision, "device": args.device, "threads": args.threads,
-                  "malloc_tuned": malloc_tuned, "torch": torch.__version__, "load_average_after": os.getloadavg()}
+                  "malloc_tuned": malloc_tuned, "mkl_on_amd": mkl_on_amd.status(), "torch": torch.__version__,
+                  "load_average_after": os.getloadavg()}
         json.dump(report, sys.stdout, indent=2)
         print()
         return 0
@@ -205,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         "device": args.device,
         "threads": args.threads,
         "malloc_tuned": malloc_tuned,
+        "mkl_on_amd": mkl_on_amd.status(),
         "torch": torch.__version__,
         "python": platform.python_version(),
         "load_average_after": os.getloadavg(),

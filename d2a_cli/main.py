@@ -15,6 +15,7 @@ import typer
 from d2a_cli import (artifacts_cmd, config_cmd, eval_cmd, intent_swap_cmd, make_track_cmd, report_cmd,
                      reproduce_cmd, train_assistant_cmd, train_humans_cmd)
 from d2a_cli.common import DeviceOpt, JsonOpt, SeedOpt, StoreOpt, apply_options, current, report_error, wants_json
+from d2a_core import mkl_on_amd
 from d2a_core.errors import D2AError
 
 app = typer.Typer(
@@ -65,6 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run the app and map every failure to its exit code."""
     argv = sys.argv[1:] if argv is None else argv
     current.json = wants_json(argv)
+    mkl_on_amd.enable()  # before any command imports torch
     try:
         code = app(args=argv, prog_name="d2a", standalone_mode=False)
     except typer.Exit as exc:

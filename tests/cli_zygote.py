@@ -21,16 +21,22 @@ import sys
 import threading
 import traceback
 
-# Third-party modules only: d2a's own modules (and anything they configure at import) load
-# fresh in each child.
-import gymnasium  # noqa: F401
-import numpy  # noqa: F401
-import pybullet  # noqa: F401
-import rich.console  # noqa: F401
-import torch  # noqa: F401
-import torch._dynamo  # noqa: F401
-import typer  # noqa: F401
-import yaml  # noqa: F401
+# MKL's kernels are chosen when torch loads, so the zygote does what `d2a_cli.main.main` does
+# first, before importing torch (the child's call then finds it done): d2a_core/mkl_on_amd.py.
+from d2a_core import mkl_on_amd
+
+mkl_on_amd.enable()
+
+# Otherwise third-party modules only: d2a's own modules (and anything they configure at import)
+# load fresh in each child.
+import gymnasium  # noqa: E402, F401
+import numpy  # noqa: E402, F401
+import pybullet  # noqa: E402, F401
+import rich.console  # noqa: E402, F401
+import torch  # noqa: E402, F401
+import torch._dynamo  # noqa: E402, F401
+import typer  # noqa: E402, F401
+import yaml  # noqa: E402, F401
 
 # Forking is safe while no Python thread runs and torch has started no thread pool (nothing here
 # computes); numpy's BLAS pool, if any, re-forms itself in the child (pthread_atfork).

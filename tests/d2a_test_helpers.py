@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 # Environment variables read when the interpreter or torch starts: a call that sets one gets a
 # process of its own, since a forked child would keep the zygote's values.
-_STARTUP_ENV = ("PYTHON", "OMP_", "MKL_", "OPENBLAS_", "LD_", "MALLOC_", "KMP_")
+_STARTUP_ENV = ("PYTHON", "OMP_", "MKL_", "OPENBLAS_", "LD_", "MALLOC_", "KMP_", "D2A_MKL_AMD")
 
 
 @dataclass

@@ -66,7 +66,7 @@ def test_train_humans_population_and_idempotence(cli, fresh_track_store):
         assert all(c["meets_intent"] == meets_intent(pop["intent"], c["metrics"]) for c in pop["checkpoints"])
         expert = next(c for c in pop["checkpoints"] if c["id"] == pop["expert"])
         assert expert["performance"] == 1.0 and all(c["performance"] >= 0.0 for c in pop["checkpoints"])
-        assert pop["runtime"]["device"] == "cpu" and pop["runtime"]["cpu_kernels"]
+        assert pop["runtime"]["device"] == "cpu" and pop["runtime"]["cpu_kernels"] and pop["runtime"]["mkl_on_amd"]
         for c in pop["checkpoints"]:
             m = c["metrics"]
             assert m["episodes"] == 2

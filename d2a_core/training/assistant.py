@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.artifacts import Store, canonical_json
@@ -303,7 +304,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
             env.close()
 
     final = checkpoints[-1]
-    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
+    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status(),
+               "mkl_on_amd": mkl_on_amd.status()}
     result = {"method": method.name, "track": bundle.track.name, "track_id": bundle.track_id, "pair": pair,
               "intents": list(intents), "seed": seed, "id": final["id"], "populations": population_ids,
               "training_episodes": dict(zip(population_ids, drawn)),

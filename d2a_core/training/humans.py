@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
@@ -237,7 +238,8 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     for checkpoint, fraction in zip(checkpoints, performance_fractions(checkpoints, expert_index)):
         checkpoint["performance"] = fraction
     # How the run executed: the compiled CPU kernels change float rounding, not the method.
-    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status()}
+    runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status(),
+               "mkl_on_amd": mkl_on_amd.status()}
     result = {"intent": intent, "track": bundle.track.name, "track_id": bundle.track_id, "seed": seed,
               "expert": expert["id"], "expert_env_step": expert["env_step"],
               "expert_meets_intent": expert["meets_intent"], "expert_rule": EXPERT_RULE,

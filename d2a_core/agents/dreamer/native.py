@@ -30,6 +30,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from d2a_core.mkl_on_amd import kernel_cache_dir
+
 log = logging.getLogger(__name__)
 
 _SOURCE = Path(__file__).with_name("cpu_kernels.c")
@@ -50,13 +52,6 @@ _SIGNATURES = {
 }
 
 
-def _cache_dir() -> Path:
-    configured = os.environ.get("D2A_KERNEL_CACHE")
-    if configured:
-        return Path(configured)
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "d2a" / "kernels"
-
-
 def _cpu_signature() -> str:
     """What -march=native depends on: the CPU's model and feature flags."""
     try:
@@ -74,7 +69,7 @@ def _compile(compiler: str) -> Path:
     for openmp in (["-fopenmp"], []):
         flags = _FLAGS + openmp
         key = hashlib.sha256(b"\0".join([source, " ".join(flags).encode(), version.encode(), cpu])).hexdigest()[:20]
-        variants.append((flags, _cache_dir() / f"cpu_kernels-{key}.so"))
+        variants.append((flags, kernel_cache_dir() / f"cpu_kernels-{key}.so"))
     # A library built before is used without compiling again (also where OpenMP failed to link).
     for _, target in variants:
         if target.exists():
