@@ -62,6 +62,8 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         classes=args.latent[1],
         continuous_actor_grad=actor_grad,
         imag_starts=args.imag_starts,
+        batch_size=args.batch_size,
+        batch_length=args.batch_length,
         precision=args.precision,
         device=args.device,
         prefill_steps=0,
@@ -181,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--imag-starts", type=int, default=None, help="imagination starts (default all 1024)")
     parser.add_argument("--actor-grad", nargs="+", default=["backprop"], choices=["backprop", "reinforce"],
                         help="continuous actor gradient(s) to time, each at every width")
+    parser.add_argument("--batch-size", type=int, default=16, help="replayed sequences per update")
+    parser.add_argument("--batch-length", type=int, default=64, help="steps per replayed sequence")
     parser.add_argument("--obs-dim", type=int, default=40)
     parser.add_argument("--action-dim", type=int, default=2)
     parser.add_argument("--device", default="cpu")
@@ -202,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                for u in args.units for grad in args.actor_grad]
     report = {
         "benchmark": "dreamer_full_update",
-        "batch": "16x64",
+        "batch": f"{args.batch_size}x{args.batch_length}",
         "imag_horizon": 15,
         "imag_starts": args.imag_starts or 1024,
         "latent": args.latent,
