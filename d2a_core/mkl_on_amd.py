@@ -80,12 +80,16 @@ def enable() -> str:
     if reason is not None:
         _state["status"] = reason
         return reason
+    # Every `d2a` call passes here: a library built before is loaded without running a compiler
+    # (one function returning 1 does not depend on the compiler's version).
+    path = kernel_cache_dir() / f"mkl_vendor-{hashlib.sha256(_SOURCE).hexdigest()[:20]}.so"
     compiler = shutil.which(os.environ.get("CC", "cc"))
-    if compiler is None:
+    if not path.exists() and compiler is None:
         _state["status"] = "not applied: needs a C compiler ($CC or cc)"
         return str(_state["status"])
     try:
-        path = _compile(compiler)
+        if not path.exists():
+            _compile(str(compiler), path)
         _state["library"] = ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
     except (OSError, RuntimeError, subprocess.SubprocessError) as error:
         _state["status"] = f"not applied ({error})"
@@ -99,14 +103,9 @@ def status() -> str:
     return str(_state["status"] or "not tried")
 
 
-def _compile(compiler: str) -> Path:
-    """The library in the kernel cache, compiled under a temporary name and renamed (a killed
-    compile leaves no half library)."""
-    version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
-    key = hashlib.sha256(_SOURCE + b"\0" + version.encode()).hexdigest()[:20]
-    target = kernel_cache_dir() / f"mkl_vendor-{key}.so"
-    if target.exists():
-        return target
+def _compile(compiler: str, target: Path) -> None:
+    """Compile the library to `target` under a temporary name and rename it (a killed compile
+    leaves no half library)."""
     target.parent.mkdir(parents=True, exist_ok=True)
     handle, source = tempfile.mkstemp(dir=target.parent, suffix=".c")
     with os.fdopen(handle, "wb") as file:
@@ -122,4 +121,3 @@ def _compile(compiler: str) -> Path:
         for leftover in (source, partial):
             if os.path.exists(leftover):
                 os.unlink(leftover)
-    return target
