@@ -90,6 +90,11 @@ class AssistantConfig(Section):
         description="gradient of a Dreamer-family assistant's continuous actor: backprop through the dynamics "
                     "or REINFORCE (None: dreamer.continuous_actor_grad)",
     )
+    imag_starts: Optional[int] = Field(
+        None, gt=0,
+        description="replayed posterior states that start imagination in a Dreamer-family assistant's "
+                    "actor-critic update (None: dreamer.imag_starts)",
+    )
     reward_relabel: bool = Field(
         False,
         description="a method with a Dreamer intent head and expert terms learns each replayed step's reward "
@@ -98,4 +103,4 @@ class AssistantConfig(Section):
     )
 
     omit_at_default = {"partner_window": 1, "intent_reads": "latent", "intent_lr": None, "train_ratio": None,
-                       "actor_grad": None, "reward_relabel": False}
+                       "actor_grad": None, "imag_starts": None, "reward_relabel": False}
