@@ -149,8 +149,8 @@ def test_reward_relabelling_is_for_a_dreamer_intent_head_with_expert_terms_only(
 
 
 def test_the_assistants_own_learner_settings_reach_dreamer_methods_only():
-    """`assistant.train_ratio` / `assistant.actor_grad` / `assistant.imag_starts` replace the drivers' `dreamer.*` values in
-    a Dreamer-family assistant's learner; unset, the shared values stay; no-rssm has no such learner."""
+    """`assistant.train_ratio` / `assistant.actor_grad` / `assistant.imag_starts` replace the
+    drivers' `dreamer.*` values in a Dreamer-family assistant's learner; unset, the shared values stay; no-rssm has no such learner."""
     base = Config()
     own = _assistant(base, train_ratio=base.dreamer.train_ratio * 2, actor_grad="reinforce", imag_starts=96)
     for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer"):

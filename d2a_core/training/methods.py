@@ -103,8 +103,8 @@ class Method:
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
         set; for a Dreamer-family method, the assistant's own learner settings
-        (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`) in its `dreamer` section; and with an
-        intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
+        (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`) in its `dreamer`
+        section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
         `assistant.intent_reads`, learning rate `assistant.intent_lr`) appended to
         `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
         is on and the reward has expert terms."""
