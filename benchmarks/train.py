@@ -9,6 +9,8 @@ warm-up and the world-model and behaviour seconds of each update, per model widt
     python benchmarks/train.py --units 128 --actor-grad backprop reinforce   # both actor gradients
     python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --imag-starts 256 \
         --actor-grad backprop reinforce backprop reinforce                  # the `quick` model
+    python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --obs-dim 98 \
+        --imag-starts 256 128 256 128                                       # imagination starts
 
 `--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
 ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
@@ -53,7 +55,7 @@ def _fill_replay(agent: DreamerAgent, steps: int, envs: int, seed: int) -> None:
 
 
 def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.Namespace,
-              actor_grad: str = "backprop") -> dict:
+              actor_grad: str = "backprop", imag_starts: int | None = None) -> dict:
     """Time `updates` full updates of an agent of the given width after `warmup` updates."""
     config = DreamerConfig(
         units=units,
@@ -61,7 +63,7 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         stoch=args.latent[0],
         classes=args.latent[1],
         continuous_actor_grad=actor_grad,
-        imag_starts=args.imag_starts,
+        imag_starts=imag_starts,
         batch_size=args.batch_size,
         batch_length=args.batch_length,
         precision=args.precision,
@@ -180,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=2, help="untimed updates first")
     parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
     parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32")
-    parser.add_argument("--imag-starts", type=int, default=None, help="imagination starts (default all 1024)")
+    parser.add_argument("--imag-starts", type=int, nargs="+", default=[None],
+                        help="imagination starts, each timed at every width (default all 1024)")
     parser.add_argument("--actor-grad", nargs="+", default=["backprop"], choices=["backprop", "reinforce"],
                         help="continuous actor gradient(s) to time, each at every width")
     parser.add_argument("--batch-size", type=int, default=16, help="replayed sequences per update")
@@ -202,13 +205,14 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(report, sys.stdout, indent=2)
         print()
         return 0
-    results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, grad), actor_grad=grad)
-               for u in args.units for grad in args.actor_grad]
+    # every setting in one process, in turn: their ratio is free of what differs between processes
+    results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, grad, starts),
+                    actor_grad=grad, imag_starts=starts or 1024)
+               for u in args.units for grad in args.actor_grad for starts in args.imag_starts]
     report = {
         "benchmark": "dreamer_full_update",
         "batch": f"{args.batch_size}x{args.batch_length}",
         "imag_horizon": 15,
-        "imag_starts": args.imag_starts or 1024,
         "latent": args.latent,
         "precision": args.precision,
         "device": args.device,
