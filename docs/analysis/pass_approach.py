@@ -10,13 +10,13 @@ docs/results.md, "twenty-fourth session" (issue 13).
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from d2a_core.artifacts import Store
+from eval_humans import humans_of, parse_args  # beside this script, on sys.path when it runs
 from d2a_core.sim.episode_log_reader import read_episode
 
 CLOSING_M = (-12.0, 2.0)  # ds window: a car length or so behind, up to alongside
@@ -37,36 +37,27 @@ def episode_row(path: Path) -> tuple[float, ...] | None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("store")
-    parser.add_argument("evals", nargs="+")
-    parser.add_argument("--intent", default="pass", help="the humans of this intent only")
-    args = parser.parse_args(argv)
+    args = parse_args(__doc__.splitlines()[0], argv)
     store = Store(args.store)
     print("| evaluation | human (group, env step) | episodes near the opponent | collided | min lateral gap m "
           "| steer: human / assistant | throttle: human / assistant |")
     print("|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as scratch:
         path = Path(scratch) / "episode.mcap"
-        for ref in args.evals:
-            eval_id = store.resolve(ref)
-            humans = store.read_json(eval_id, "eval.json")["result"]["humans"]
-            logs = [name for name in store.get(eval_id).files if name.startswith("episodes/assisted/")]
-            for index, human in enumerate(humans):
-                if human["intent"] != args.intent:
-                    continue
-                rows = []
-                for name in logs:
-                    if Path(name).name.startswith(f"human{index:03d}-"):
-                        path.write_bytes(store.read_bytes(eval_id, name))
-                        row = episode_row(path)
-                        if row is not None:
-                            rows.append(row)
-                if not rows:
-                    continue
-                r = np.array(rows).mean(axis=0)
-                print(f"| `{eval_id[:12]}` | {human['group']}, {human['env_step'] // 1000}k | {len(rows)} | {r[0]:.2f} "
-                      f"| {r[1]:.1f} | {r[2]:+.2f} / {r[3]:+.2f} | {r[4]:+.2f} / {r[5]:+.2f} |")
+        for eval_id, _, index, human in humans_of(store, args.evals, args.intent):
+            logs = [name for name in store.get(eval_id).files
+                    if name.startswith("episodes/assisted/") and Path(name).name.startswith(f"human{index:03d}-")]
+            rows = []
+            for name in logs:
+                path.write_bytes(store.read_bytes(eval_id, name))
+                row = episode_row(path)
+                if row is not None:
+                    rows.append(row)
+            if not rows:
+                continue
+            r = np.array(rows).mean(axis=0)
+            print(f"| `{eval_id[:12]}` | {human['group']}, {human['env_step'] // 1000}k | {len(rows)} | {r[0]:.2f} "
+                  f"| {r[1]:.1f} | {r[2]:+.2f} / {r[3]:+.2f} | {r[4]:+.2f} / {r[5]:+.2f} |")
     print("\nMeans over the human's assisted episodes that came within the ds window "
           f"[{CLOSING_M[0]:g} m, {CLOSING_M[1]:g} m] of the opponent; steer and throttle are means over those steps.")
 

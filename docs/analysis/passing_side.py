@@ -12,11 +12,10 @@ EVAL_ID: `evaluation` artifacts (the `id`s of `d2a eval --json`) or their aliase
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 
 from d2a_core.artifacts import Store
+from eval_humans import humans_of, parse_args  # beside this script, on sys.path when it runs
 
 
 def _mean(rows: list[dict], key: str) -> float:
@@ -29,27 +28,18 @@ def _pair(unassisted: list[dict], assisted: list[dict], key: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("store")
-    parser.add_argument("evals", nargs="+")
-    parser.add_argument("--intent", default="pass", help="the humans of this intent only")
-    args = parser.parse_args(argv)
+    args = parse_args(__doc__.splitlines()[0], argv)
     store = Store(args.store)
     print("| evaluation | human (group, env step) | share of steps on the left | held left / held right "
           "| car collisions | barrier collisions |")
     print("|---|---|---|---|---|---|")
-    for ref in args.evals:
-        eval_id = store.resolve(ref)
-        stored = store.read_json(eval_id, "eval.json")
-        for index, human in enumerate(stored["result"]["humans"]):
-            if human["intent"] != args.intent:
-                continue
-            alone = [row for row in stored["unassisted"] if row["human"] == index]
-            helped = [row for row in stored["assisted"] if row["human"] == index]
-            held = (f"{_pair(alone, helped, 'held_left')} / {_pair(alone, helped, 'held_right')}")
-            print(f"| `{eval_id[:12]}` | {human['group']}, {human['env_step'] // 1000}k "
-                  f"| {_pair(alone, helped, 'share_left')} | {held} "
-                  f"| {_pair(alone, helped, 'collision_car')} | {_pair(alone, helped, 'collision_barrier')} |")
+    for eval_id, stored, index, human in humans_of(store, args.evals, args.intent):
+        alone = [row for row in stored["unassisted"] if row["human"] == index]
+        helped = [row for row in stored["assisted"] if row["human"] == index]
+        held = f"{_pair(alone, helped, 'held_left')} / {_pair(alone, helped, 'held_right')}"
+        print(f"| `{eval_id[:12]}` | {human['group']}, {human['env_step'] // 1000}k "
+              f"| {_pair(alone, helped, 'share_left')} | {held} "
+              f"| {_pair(alone, helped, 'collision_car')} | {_pair(alone, helped, 'collision_barrier')} |")
     print("\nEach cell: unassisted → assisted, the mean over the human's paired episodes.")
 
 
