@@ -95,6 +95,11 @@ class AssistantConfig(Section):
         description="replayed posterior states that start imagination in a Dreamer-family assistant's "
                     "actor-critic update (None: dreamer.imag_starts)",
     )
+    precision: Optional[Literal["float32", "bfloat16"]] = Field(
+        None,
+        description="training precision of a Dreamer-family assistant's learner (bfloat16: autocast, weights "
+                    "and optimiser stay float32; None: dreamer.precision)",
+    )
     reward_relabel: bool = Field(
         False,
         description="a method with a Dreamer intent head and expert terms learns each replayed step's reward "
@@ -103,4 +108,5 @@ class AssistantConfig(Section):
     )
 
     omit_at_default = {"partner_window": 1, "intent_reads": "latent", "intent_lr": None, "train_ratio": None,
-                       "actor_grad": None, "imag_starts": None, "reward_relabel": False}
+                       "actor_grad": None, "imag_starts": None, "precision": None,
+                       "reward_relabel": False}

@@ -47,7 +47,7 @@ METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha
 method's, not a user override)."""
 
 ASSISTANT_DREAMER_KEYS = {"train_ratio": "train_ratio", "actor_grad": "continuous_actor_grad",
-                          "imag_starts": "imag_starts"}
+                          "imag_starts": "imag_starts", "precision": "precision"}
 """`assistant.<key>` -> the `dreamer.<key>` it replaces in a Dreamer-family assistant's learner
 (the `dreamer` section is shared with the populations, so the assistant's own values live here)."""
 
@@ -103,7 +103,8 @@ class Method:
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
         set; for a Dreamer-family method, the assistant's own learner settings
-        (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`) in its `dreamer`
+        (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`,
+        `assistant.precision`) in its `dreamer`
         section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
         `assistant.intent_reads`, learning rate `assistant.intent_lr`) appended to
         `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
