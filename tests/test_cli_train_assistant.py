@@ -246,3 +246,8 @@ def test_usage_errors_name_what_to_do(cli, pair_store):
     assert res.code == 2 and "of intent 'stay', not 'pass'" in res.json["error"]["message"]
     res = cli("train-assistant", *PAIR, "--humans", stay, *SMOKE, "--json", store=pair_store)
     assert res.code == 2 and "one population per intent" in res.json["error"]["message"]
+    # humans trained on another observation layout: exit 2 naming the setting, nothing stored
+    before = {art.id for art in Store(pair_store).list()}
+    res = cli("train-assistant", *PAIR, *SMOKE, "--set", "env.observe_clearance=true", "--json", store=pair_store)
+    assert res.code == 2 and "env.observe_clearance=false" in res.json["error"]["message"]
+    assert {art.id for art in Store(pair_store).list()} == before

@@ -45,7 +45,8 @@ from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.objectives.rewards import INTENTS
 from d2a_core.pipelines.make_track import opponents_of
-from d2a_core.sim.race_env import RaceEnv
+from d2a_core.sim.env_config import EnvConfig
+from d2a_core.sim.race_env import RaceEnv, observation_names
 from d2a_core.sim.replay import OpponentReplay
 from d2a_core.tracks.track import Track
 from d2a_core.training.allocator import keep_freed_memory
@@ -116,6 +117,14 @@ def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu"
     art = store.get(ref)
     if art.kind != "human":
         raise UsageError(f"{ref} is a {art.kind} artifact, not a human checkpoint")
+    trained = EnvConfig.model_validate(art.manifest.get("config", {}).get("env", {}))
+    names = observation_names(trained.edge_lookahead_m, trained.observe_clearance)
+    if len(names) != int(np.prod(obs_space.shape)):
+        raise UsageError(
+            f"human {art.id[:12]} was trained on observations of {len(names)} values (env.observe_clearance="
+            f"{str(trained.observe_clearance).lower()}, {len(trained.edge_lookahead_m)} edge lookaheads), this env "
+            f"gives {int(np.prod(obs_space.shape))}: use the env settings its population was trained with "
+            "(--set env.observe_clearance=...)")
     state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
     config = DreamerConfig.model_validate({**state["config"], "device": device})
     agent = DreamerAgent(obs_space, act_space, config, seed=0)
