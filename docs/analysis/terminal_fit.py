@@ -53,7 +53,7 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
     rows: dict[str, list[tuple]] = defaultdict(list)
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
-        state, reward, first, done = None, 0.0, True, False
+        state, reward, first, done, terminated = None, 0.0, True, False, False
         while True:
             record = {"obs": obs[None], "is_first": np.array([first])}
             action, state = agent.policy(record, state, explore=explore, generator=generator)
