@@ -23,6 +23,7 @@ import torch
 from d2a_core.agents.dreamer.distributions import symexp
 from d2a_core.artifacts import Store
 from d2a_core.config import load
+from d2a_core.sim.env_config import EnvConfig
 from d2a_core.training.humans import load_human, load_track_bundle
 
 
@@ -45,11 +46,15 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
     art = store.get(human_id)
     intent = art.labels["intent"]
     config = load("quick").config
+    # the env the checkpoint was trained in (e.g. with `env.observe_clearance`)
+    trained_env = EnvConfig.model_validate(art.manifest.get("config", {}).get("env", {}))
+    config = config.model_copy(update={"env": trained_env})
     bundle = load_track_bundle(store, art.labels["track"], config.env.dt)
     env = bundle.env(config, intent=intent)
     agent = load_human(store, human_id, env.observation_space, env.action_space)
     generator = torch.Generator().manual_seed(seed)
     ds_at, de_at = env.observation_names.index("ds"), env.observation_names.index("de")
+    clear_at = env.observation_names.index("opp_clearance") if "opp_clearance" in env.observation_names else None
     rows: dict[str, list[tuple]] = defaultdict(list)
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
@@ -64,7 +69,8 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
                 outcome = outcome_of(info, terminated) if done else "running"
                 rows[outcome].append((float(predicted["continue"][0]), float(predicted["reward"][0]), reward,
                                       float(info["ds"]), float(info["de"]), float(decoded[ds_at]),
-                                      float(decoded[de_at])))
+                                      float(decoded[de_at]),
+                                      *((float(obs[clear_at]), float(decoded[clear_at])) if clear_at else ())))
             if done:
                 break
             obs, reward, terminated, truncated, info = env.step(action[0])
@@ -95,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {human_id[:12]} ({env_step}) | {outcome} | {len(a)} | {a[:, 0].mean():.2f} "
                   f"({a[:, 0].min():.2f}-{a[:, 0].max():.2f}) | {a[:, 1].mean():.1f} | {a[:, 2].mean():.1f} "
                   f"| {a[:, 3].mean():.1f} | {np.abs(a[:, 4]).mean():.1f} "
-                  f"| {np.abs(a[:, 5] - a[:, 3]).mean():.2f} / {np.abs(a[:, 6] - a[:, 4]).mean():.2f} |")
+                  f"| {np.abs(a[:, 5] - a[:, 3]).mean():.2f} / {np.abs(a[:, 6] - a[:, 4]).mean():.2f} |"
+                  + (f" clearance {a[:, 7].mean():.2f}, decoded {a[:, 8].mean():.2f} |" if a.shape[1] > 7 else ""))
     return 0
 
 
