@@ -9,7 +9,9 @@ against the reward the env paid.
 
 Prints one markdown row per checkpoint and outcome. `wm/terminal_continue` in a training curve
 is the same continue figure on replayed batches; this script splits it by what ended the episode
-and shows the states the model saw there (gap to the opponent along and across the road).
+and shows the states the model saw there (gap to the opponent along and across the road), how
+far the world model's reconstruction of that gap is off, and, for checkpoints trained with
+`env.observe_clearance`, the observed and reconstructed clearance between the cars.
 """
 
 from __future__ import annotations
