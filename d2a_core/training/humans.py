@@ -37,7 +37,7 @@ from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
-from d2a_core.artifacts import Store, canonical_json
+from d2a_core.artifacts import Artifact, Store, canonical_json
 from d2a_core.config import ResolvedConfig
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
 from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_value, meets_intent,
@@ -112,12 +112,17 @@ def _agent_bytes(agent: DreamerAgent) -> bytes:
     return buffer.getvalue()
 
 
+def trained_env_config(art: Artifact) -> EnvConfig:
+    """The env settings a human checkpoint was trained in (its manifest's `env` section)."""
+    return EnvConfig.model_validate((art.config or {}).get("env", {}))
+
+
 def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu") -> DreamerAgent:
     """A stored human checkpoint as a ready-to-act agent (on `device`)."""
     art = store.get(ref)
     if art.kind != "human":
         raise UsageError(f"{ref} is a {art.kind} artifact, not a human checkpoint")
-    trained = EnvConfig.model_validate(art.manifest.get("config", {}).get("env", {}))
+    trained = trained_env_config(art)
     names = observation_names(trained.edge_lookahead_m, trained.observe_clearance)
     if len(names) != int(np.prod(obs_space.shape)):
         raise UsageError(

@@ -25,8 +25,7 @@ import torch
 from d2a_core.agents.dreamer.distributions import symexp
 from d2a_core.artifacts import Store
 from d2a_core.config import load
-from d2a_core.sim.env_config import EnvConfig
-from d2a_core.training.humans import load_human, load_track_bundle
+from d2a_core.training.humans import load_human, load_track_bundle, trained_env_config
 
 
 def outcome_of(info: dict, terminated: bool) -> str:
@@ -49,8 +48,7 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
     intent = art.labels["intent"]
     config = load("quick").config
     # the env the checkpoint was trained in (e.g. with `env.observe_clearance`)
-    trained_env = EnvConfig.model_validate(art.manifest.get("config", {}).get("env", {}))
-    config = config.model_copy(update={"env": trained_env})
+    config = config.model_copy(update={"env": trained_env_config(art)})
     bundle = load_track_bundle(store, art.labels["track"], config.env.dt)
     env = bundle.env(config, intent=intent)
     agent = load_human(store, human_id, env.observation_space, env.action_space)
