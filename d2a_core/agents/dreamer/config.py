@@ -49,6 +49,9 @@ class DreamerConfig(Section):
     decoder_scale: float = Field(1.0, ge=0)
     reward_scale: float = Field(1.0, ge=0)
     continue_scale: float = Field(1.0, ge=0)
+    terminal_weight: float = Field(
+        1.0, ge=0, description="scale of the reward and continue losses at steps that end an episode (1: DreamerV3)"
+    )
     extra_heads: list[HeadConfig] = Field(default_factory=list, description="extra world-model heads")
     # A reward that depends on a classifier's estimate at collection time (the assistant's
     # r_hat*(y_hat)) goes stale in replay: most of it was collected while the estimate was poor.
@@ -121,7 +124,7 @@ class DreamerConfig(Section):
     )
 
     omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-                       "reward_relabel_head": None}
+                       "reward_relabel_head": None, "terminal_weight": 1.0}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:
