@@ -294,3 +294,16 @@ def test_a_side_population_leaves_the_intents_aliases_and_survives_gc(cli, fresh
     assert cli("artifacts", "gc", "--json", store=fresh_track_store).code == 0
     for ref in [side_pop["id"], *(c["id"] for c in side_pop["checkpoints"])]:
         store.get(ref)  # raises if gc removed it
+
+
+def test_the_drivers_own_keys_override_the_shared_dreamer_settings():
+    """`humans.model_lr` and `humans.terminal_weight` reach the drivers' DreamerV3 config; unset,
+    the drivers take `dreamer.*` like the assistant."""
+    plain = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4", "dreamer.terminal_weight=3"]).config
+    own = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4", "dreamer.terminal_weight=3",
+                                              "humans.model_lr=5e-4", "humans.terminal_weight=10"]).config
+    assert (humans_mod.driver_dreamer_config(plain).model_lr, humans_mod.driver_dreamer_config(plain).terminal_weight) \
+        == (2e-4, 3.0)
+    mine = humans_mod.driver_dreamer_config(own)
+    assert (mine.model_lr, mine.terminal_weight) == (5e-4, 10.0)
+    assert own.dreamer.terminal_weight == 3.0  # the shared section, which the assistant reads, is untouched

@@ -31,6 +31,11 @@ class HumansConfig(Section):
         None, gt=0,
         description="world-model learning rate of the drivers (unset: dreamer.model_lr); the assistant keeps dreamer.model_lr",
     )
+    terminal_weight: float | None = Field(
+        None, ge=0,
+        description="scale of the drivers' reward and continue losses at episode ends (unset: dreamer.terminal_weight); "
+                    "the assistant keeps dreamer.terminal_weight",
+    )
     eval_logs: int = Field(
         0, ge=0,
         description="evaluation episodes of each checkpoint kept as MCAP episode logs (episodes/*.mcap), to see where it fails",
@@ -41,7 +46,7 @@ class HumansConfig(Section):
                     "(0: always the grid); evaluation always starts from the grid",
     )
 
-    omit_at_default = {"eval_logs": 0, "train_start_spread": 0.0}
+    omit_at_default = {"eval_logs": 0, "train_start_spread": 0.0, "terminal_weight": None}
 
 
 class AssistantConfig(Section):

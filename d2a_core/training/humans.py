@@ -39,6 +39,7 @@ from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.artifacts import Artifact, Store, canonical_json
 from d2a_core.config import ResolvedConfig
+from d2a_core.config.schema import Config
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
 from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_value, meets_intent,
                                           performance_fractions)
@@ -157,6 +158,15 @@ def train_population(
         return _train_population(store, track_ref, intent, resolved, seed, device, progress, move_aliases)
 
 
+def driver_dreamer_config(cfg: Config, device: str = "cpu") -> DreamerConfig:
+    """The drivers' DreamerV3 settings: `dreamer.*` with the `humans.*` keys that override it."""
+    # A short run's world model must fit rare crash terminals in few updates (docs/results.md,
+    # "Why left fails"); the drivers may learn faster than the assistant, which shares `dreamer`.
+    hc = cfg.humans
+    own = {"model_lr": hc.model_lr, "terminal_weight": hc.terminal_weight}
+    return cfg.dreamer.model_copy(update={"device": device, **{k: v for k, v in own.items() if v is not None}})
+
+
 def _train_population(store: Store, track_ref: str, intent: str, resolved: ResolvedConfig, seed: int,
                       device: str, progress: ProgressFn | None, move_aliases: bool) -> dict[str, Any]:
     if intent not in INTENTS:
@@ -174,9 +184,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     if hc.torch_threads:
         torch.set_num_threads(hc.torch_threads)
     keep_freed_memory()
-    # A short run's world model must fit rare crash terminals in few updates (docs/results.md,
-    # "Why left fails"); the drivers may learn faster than the assistant, which shares `dreamer`.
-    dreamer_cfg = cfg.dreamer.model_copy(update={"device": device, "model_lr": hc.model_lr if hc.model_lr is not None else cfg.dreamer.model_lr})
+    dreamer_cfg = driver_dreamer_config(cfg, device)
 
     def make_env() -> RaceEnv:
         return bundle.env(cfg, intent)
