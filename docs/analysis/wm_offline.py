@@ -21,6 +21,7 @@ import argparse
 import json
 import time
 
+import gymnasium as gym
 import numpy as np
 import torch
 from sklearn.metrics import roc_auc_score
@@ -131,8 +132,6 @@ def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: 
     held = episodes[episodes % 5 == 4]
     train_eps = episodes[episodes % 5 != 4]
     obs_size = data["obs"].shape[1]
-    import gymnasium as gym
-
     obs_space = gym.spaces.Box(-np.inf, np.inf, (obs_size,), np.float32)
     act_space = gym.spaces.Box(-1.0, 1.0, (data["action"].shape[1],), np.float32)
     agent = DreamerAgent(obs_space, act_space, dreamer, seed=seed)
