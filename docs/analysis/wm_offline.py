@@ -6,8 +6,9 @@ head and reward head read the steps that ended an episode.
 
     python docs/analysis/wm_offline.py record STORE HUMAN_ID [HUMAN_ID ...] --out DATA.npz [--episodes 20]
     python docs/analysis/wm_offline.py train DATA.npz [--updates 2500] [--set dreamer.KEY=VALUE ...]
+    python docs/analysis/wm_offline.py score DATA.npz STORE HUMAN_ID [HUMAN_ID ...]
 
-`train` prints one JSON line per evaluation: updates done, the mean continue probability at
+`train` prints one JSON line per evaluation (`score`: per stored checkpoint, its own world model): updates done, the mean continue probability at
 collisions with the opponent (0 is right) and at the other steps, the ROC AUC of 1 - continue
 for "this step is a car collision" among the steps within 15 m of the opponent (0.5: no better
 than chance), and the mean reward the head predicts at car collisions against what was paid.
@@ -154,6 +155,21 @@ def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: 
             print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()}), flush=True)
 
 
+def score_checkpoints(path: str, store: Store, refs: list[str]) -> None:
+    """Score stored checkpoints' own world models on the held-out recorded episodes."""
+    data = dict(np.load(path))
+    episodes = np.unique(data["episode"])
+    held = episodes[episodes % 5 == 4]
+    for ref in refs:
+        art = store.get(store.resolve(ref))
+        config = load("quick").config.model_copy(update={"env": trained_env_config(art)})
+        env = load_track_bundle(store, art.labels["track"], config.env.dt).env(config, intent=art.labels["intent"])
+        agent = load_human(store, art.id, env.observation_space, env.action_space)
+        env.close()
+        line = {"checkpoint": art.id[:12], "env_step": art.labels["env_step"], **score(agent, data, held)}
+        print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()}), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -170,6 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--set", dest="overrides", action="append", default=[])
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--streams", type=int, default=8)
+    sc = sub.add_parser("score")
+    sc.add_argument("data")
+    sc.add_argument("store")
+    sc.add_argument("humans", nargs="+")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.command == "record":
@@ -178,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         outcome = np.bincount(data["outcome"], minlength=len(OUTCOMES))
         print(json.dumps({"steps": len(data["obs"]), "episodes": int(data["episode"].max() + 1),
                           **{name: int(n) for name, n in zip(OUTCOMES, outcome) if name != "running"}}))
+    elif args.command == "score":
+        score_checkpoints(args.data, Store(args.store), args.humans)
     else:
         train(args.data, args.updates, args.overrides, args.eval_every, args.seed, args.streams)
     return 0
