@@ -50,7 +50,7 @@ def record(store: Store, refs: list[str], episodes: int, seed: int) -> dict[str,
     """Every step of `episodes` episodes per checkpoint, in the replay's record layout, plus
     each step's episode number, outcome and gap to the opponent along the road."""
     columns: dict[str, list] = {k: [] for k in ("obs", "action", "reward", "is_first", "is_terminal",
-                                                "episode", "outcome", "ds")}
+                                                "episode", "outcome", "ds", "env_step")}
     episode_no = 0
     for ref in refs:
         art = store.get(store.resolve(ref))
@@ -68,7 +68,8 @@ def record(store: Store, refs: list[str], episodes: int, seed: int) -> dict[str,
                                              explore=True, generator=generator)
                 for key, value in (("obs", obs), ("action", action[0]), ("reward", reward), ("is_first", first),
                                    ("is_terminal", terminated), ("episode", episode_no),
-                                   ("outcome", outcome_index(info, terminated, truncated)), ("ds", info["ds"])):
+                                   ("outcome", outcome_index(info, terminated, truncated)), ("ds", info["ds"]),
+                                   ("env_step", art.labels["env_step"])):
                     columns[key].append(value)
                 if terminated or truncated:
                     break
@@ -125,7 +126,8 @@ def score(agent: DreamerAgent, data: dict[str, np.ndarray], episodes: np.ndarray
     return result
 
 
-def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: int, streams_n: int) -> None:
+def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: int, streams_n: int,
+          grow: bool) -> None:
     data = dict(np.load(path))
     config = load("quick", overrides=overrides).config
     dreamer = config.dreamer.model_copy(update={"model_lr": config.humans.model_lr or config.dreamer.model_lr})
@@ -136,25 +138,48 @@ def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: 
     obs_space = gym.spaces.Box(-np.inf, np.inf, (obs_size,), np.float32)
     act_space = gym.spaces.Box(-1.0, 1.0, (data["action"].shape[1],), np.float32)
     agent = DreamerAgent(obs_space, act_space, dreamer, seed=seed)
+    if grow:
+        # as in a run: episodes arrive in the order of the checkpoints that drove them, and the
+        # world model trains on the replay so far at the config's train ratio
+        first_step = {e: data["env_step"][np.argmax(data["episode"] == e)] for e in train_eps}
+        train_eps = np.array(sorted(train_eps, key=lambda e: (first_step[e], e)))
+        steps, added, u = streams(data, train_eps, streams_n), 0, 0
+        started = time.perf_counter()
+        for t, step in enumerate(steps):
+            agent.observe(step)
+            added += streams_n
+            for _ in range(agent.updates_due(added)):
+                u += 1
+                agent.updates_done += 1
+                out = _update(agent)
+            if (t + 1) % (len(steps) // 5) == 0 or t == len(steps) - 1:
+                print(json.dumps({"env_steps": added, "updates": u, "seconds": round(time.perf_counter() - started, 1),
+                                  **{k: round(v, 3) if isinstance(v, float) else v
+                                     for k, v in score(agent, data, held).items()}}), flush=True)
+        return
     for step in streams(data, train_eps, streams_n):
         agent.observe(step)
-    c = agent.config
     started = time.perf_counter()
     for u in range(1, updates + 1):
-        batch = {k: torch.as_tensor(v) for k, v in agent.replay.sample(
-            c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
-            c.replay_terminal_fraction).items()}
-        out = agent.world_model.loss(batch, agent.train_generator)
-        agent.model_opt.zero_grad(set_to_none=True)
-        out.loss.backward()
-        torch.nn.utils.clip_grad_norm_(agent.world_model.parameters(), c.model_grad_clip)
-        agent.model_opt.step()
+        out = _update(agent)
         if u % eval_every == 0 or u == updates:
             line = {"updates": u, "seconds": round(time.perf_counter() - started, 1),
                     "wm_loss": round(out.loss.item(), 3), **score(agent, data, held)}
             print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()}), flush=True)
 
 
+def _update(agent: DreamerAgent):
+    """One world-model update on a replayed batch (the sampling of training)."""
+    c = agent.config
+    batch = {k: torch.as_tensor(v) for k, v in agent.replay.sample(
+        c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
+        c.replay_terminal_fraction).items()}
+    out = agent.world_model.loss(batch, agent.train_generator)
+    agent.model_opt.zero_grad(set_to_none=True)
+    out.loss.backward()
+    torch.nn.utils.clip_grad_norm_(agent.world_model.parameters(), c.model_grad_clip)
+    agent.model_opt.step()
+    return out
 def score_checkpoints(path: str, store: Store, refs: list[str]) -> None:
     """Score stored checkpoints' own world models on the held-out recorded episodes."""
     data = dict(np.load(path))
@@ -186,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--set", dest="overrides", action="append", default=[])
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--streams", type=int, default=8)
+    tr.add_argument("--grow", action="store_true",
+                    help="add the episodes in checkpoint order and update at the train ratio, as a run does")
     sc = sub.add_parser("score")
     sc.add_argument("data")
     sc.add_argument("store")
@@ -201,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "score":
         score_checkpoints(args.data, Store(args.store), args.humans)
     else:
-        train(args.data, args.updates, args.overrides, args.eval_every, args.seed, args.streams)
+        train(args.data, args.updates, args.overrides, args.eval_every, args.seed, args.streams, args.grow)
     return 0
 
 
