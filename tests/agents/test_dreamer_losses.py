@@ -267,6 +267,18 @@ def test_the_actor_cannot_raise_its_return_by_predicting_termination(make_agent)
     assert grads and all(torch.count_nonzero(g) == 0 for g in grads)
 
 
+def _episodes_of_six() -> dict[str, torch.Tensor]:
+    """Two rows of two 6-step episodes (obs 3, action 2), each ending on a -50 terminal step."""
+    k = torch.arange(12).remainder(6).float()
+    return {
+        "obs": torch.stack((k, torch.ones(12), -torch.ones(12)), -1).unsqueeze(0).repeat(2, 1, 1),
+        "action": torch.zeros(2, 12, 2),
+        "reward": torch.where(k == 5, -50.0, 1.0).unsqueeze(0).repeat(2, 1),
+        "is_first": (k == 0).unsqueeze(0).repeat(2, 1),
+        "is_terminal": (k == 5).unsqueeze(0).repeat(2, 1),
+    }
+
+
 def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(make_agent):
     """`wm/terminal_*` report the continue probability and the symlog reward error of the
     world model's own predictions on the terminal steps of the batch (and 0 without any)."""
@@ -276,14 +288,7 @@ def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(m
     with torch.no_grad():  # predictions that differ from step to step
         for head in (model.reward_head, model.continue_head):
             head.out.weight.normal_(0.0, 0.5)
-    k = torch.arange(12).remainder(6).float()
-    batch = {
-        "obs": torch.stack((k, torch.ones(12), -torch.ones(12)), -1).unsqueeze(0).repeat(2, 1, 1),
-        "action": torch.zeros(2, 12, 2),
-        "reward": torch.where(k == 5, -50.0, 1.0).unsqueeze(0).repeat(2, 1),
-        "is_first": (k == 0).unsqueeze(0).repeat(2, 1),
-        "is_terminal": (k == 5).unsqueeze(0).repeat(2, 1),
-    }
+    batch = _episodes_of_six()
     out = model.loss(batch, torch.Generator().manual_seed(0))
     terminal = batch["is_terminal"]
     with torch.no_grad():
@@ -300,14 +305,7 @@ def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(m
 def test_terminal_weight_scales_the_reward_and_continue_losses_of_terminal_steps_only(make_agent):
     """`terminal_weight` w multiplies the reward and continue losses at `is_terminal` steps by w
     and leaves every other step and term as DreamerV3 has it."""
-    k = torch.arange(12).remainder(6).float()
-    batch = {
-        "obs": torch.stack((k, torch.ones(12), -torch.ones(12)), -1).unsqueeze(0).repeat(2, 1, 1),
-        "action": torch.zeros(2, 12, 2),
-        "reward": torch.where(k == 5, -50.0, 1.0).unsqueeze(0).repeat(2, 1),
-        "is_first": (k == 0).unsqueeze(0).repeat(2, 1),
-        "is_terminal": (k == 5).unsqueeze(0).repeat(2, 1),
-    }
+    batch = _episodes_of_six()
     config = make_agent(obs_size=3).config
 
     def losses(weight: float, terminal: torch.Tensor) -> dict[str, float]:
