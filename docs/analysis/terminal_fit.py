@@ -23,8 +23,10 @@ import numpy as np
 import torch
 
 from d2a_core.agents.dreamer.distributions import symexp
+from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.artifacts import Store
 from d2a_core.config import load
+from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.humans import load_human, load_track_bundle, trained_env_config
 
 
@@ -41,17 +43,21 @@ def outcome_of(info: dict, terminated: bool) -> str:
     return "finish"
 
 
+def checkpoint_and_env(store: Store, human_id: str) -> tuple[DreamerAgent, RaceEnv]:
+    """A stored human checkpoint and an env of its intent on its track, with the env settings it
+    was trained in (e.g. `env.observe_clearance`)."""
+    art = store.get(human_id)
+    config = load("quick").config
+    config = config.model_copy(update={"env": trained_env_config(art)})
+    bundle = load_track_bundle(store, art.labels["track"], config.env.dt)
+    env = bundle.env(config, intent=art.labels["intent"])
+    return load_human(store, human_id, env.observation_space, env.action_space), env
+
+
 def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) -> dict[str, list[tuple]]:
     """(continue prob, predicted reward, paid reward, ds, de, decoded ds, decoded de) per step,
     grouped by outcome (decoded: the world model's reconstruction of the observation)."""
-    art = store.get(human_id)
-    intent = art.labels["intent"]
-    config = load("quick").config
-    # the env the checkpoint was trained in (e.g. with `env.observe_clearance`)
-    config = config.model_copy(update={"env": trained_env_config(art)})
-    bundle = load_track_bundle(store, art.labels["track"], config.env.dt)
-    env = bundle.env(config, intent=intent)
-    agent = load_human(store, human_id, env.observation_space, env.action_space)
+    agent, env = checkpoint_and_env(store, human_id)
     generator = torch.Generator().manual_seed(seed)
     ds_at, de_at = env.observation_names.index("ds"), env.observation_names.index("de")
     clear_at = env.observation_names.index("opp_clearance") if "opp_clearance" in env.observation_names else None

@@ -30,7 +30,7 @@ from sklearn.metrics import roc_auc_score
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.artifacts import Store
 from d2a_core.config import load
-from d2a_core.training.humans import load_human, load_track_bundle, trained_env_config
+from terminal_fit import checkpoint_and_env  # beside this script, on sys.path when it runs
 
 OUTCOMES = ("running", "collision (car)", "collision (barrier)", "off track", "finish", "truncated")
 NEAR_M = 15.0
@@ -54,11 +54,7 @@ def record(store: Store, refs: list[str], episodes: int, seed: int) -> dict[str,
     episode_no = 0
     for ref in refs:
         art = store.get(store.resolve(ref))
-        config = load("quick").config
-        config = config.model_copy(update={"env": trained_env_config(art)})
-        bundle = load_track_bundle(store, art.labels["track"], config.env.dt)
-        env = bundle.env(config, intent=art.labels["intent"])
-        agent = load_human(store, art.id, env.observation_space, env.action_space)
+        agent, env = checkpoint_and_env(store, art.id)
         generator = torch.Generator().manual_seed(seed)
         for k in range(episodes):
             obs, info = env.reset(seed=seed + k)
@@ -97,7 +93,8 @@ def streams(data: dict[str, np.ndarray], episodes: np.ndarray, n: int) -> list[d
 
 @torch.no_grad()
 def score(agent: DreamerAgent, data: dict[str, np.ndarray], episodes: np.ndarray) -> dict[str, float]:
-    """Filter every held-out episode with the world model and read its heads at every step."""
+    """Filter every held-out episode with the world model (latents sampled from a generator seeded
+    with the episode number, so a score repeats exactly) and read its heads at every step."""
     wm = agent.world_model
     cont, reward = [], []
     for e in episodes:
@@ -106,7 +103,7 @@ def score(agent: DreamerAgent, data: dict[str, np.ndarray], episodes: np.ndarray
         action = torch.as_tensor(agent._internal_action_array(data["action"][rows]))[None]
         prev = torch.cat((torch.zeros_like(action[:, :1]), action[:, :-1]), 1)
         first = torch.as_tensor(data["is_first"][rows])[None]
-        latent = wm.rssm.observe(wm.embed(obs), prev, first, None).latent
+        latent = wm.rssm.observe(wm.embed(obs), prev, first, torch.Generator().manual_seed(int(e))).latent
         cont.append(wm.continue_prob(latent)[0].numpy())
         reward.append(wm.reward(latent)[0].numpy())
     rows = np.concatenate([np.flatnonzero(data["episode"] == e) for e in episodes])
@@ -187,9 +184,7 @@ def score_checkpoints(path: str, store: Store, refs: list[str]) -> None:
     held = episodes[episodes % 5 == 4]
     for ref in refs:
         art = store.get(store.resolve(ref))
-        config = load("quick").config.model_copy(update={"env": trained_env_config(art)})
-        env = load_track_bundle(store, art.labels["track"], config.env.dt).env(config, intent=art.labels["intent"])
-        agent = load_human(store, art.id, env.observation_space, env.action_space)
+        agent, env = checkpoint_and_env(store, art.id)
         env.close()
         line = {"checkpoint": art.id[:12], "env_step": art.labels["env_step"], **score(agent, data, held)}
         print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()}), flush=True)
