@@ -365,3 +365,27 @@ def test_an_agent_that_only_acts_does_not_build_its_optimisers(make_agent, fill_
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines()[-2:] == ["acting imported torch._dynamo: False",
                                             "training imported torch._dynamo: True"]
+
+
+def test_model_updates_step_the_world_model_that_many_times_and_the_actor_once(make_agent, fill_random):
+    """`model_updates=3`: each update draws three batches and steps the world model's optimiser
+    three times, the actor's and critic's once; updates_done counts the update once."""
+    agent = make_agent(model_updates=3)
+    fill_random(agent, 30)
+    sample, draws = agent.replay.sample, []
+
+    def spy(*args):
+        draws.append(1)
+        return sample(*args)
+
+    agent.replay.sample = spy
+    for _ in range(2):
+        agent.train_step()
+
+    def steps(opt):
+        return int(next(iter(opt.state_dict()["state"].values()))["step"])
+
+    assert len(draws) == 6
+    assert steps(agent.model_opt) == 6
+    assert steps(agent.actor_opt) == steps(agent.critic_opt) == 2
+    assert agent.updates_done == 2

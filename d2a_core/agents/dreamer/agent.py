@@ -252,26 +252,15 @@ class DreamerAgent:
     # --- training
 
     def train_step(self) -> dict[str, float]:
-        """One world-model update and one actor-critic update on a replayed batch.
+        """`model_updates` world-model updates (one replayed batch each) and one actor-critic
+        update from the last batch's states.
 
         Raises TrainingError before any optimiser step whose loss or gradient is not finite,
         so the parameters stay as they were."""
         c = self.config
         started = time.perf_counter()
-        batch = {
-            key: torch.as_tensor(value, device=self.device)
-            for key, value in self.replay.sample(
-                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
-                c.replay_terminal_fraction,
-            ).items()
-        }
-        with self._autocast():
-            wm_out = self.world_model.loss(batch, self.train_generator)
-        self._check_finite({"wm/loss": wm_out.loss}, wm_out.metrics)
-        self.model_opt.zero_grad(set_to_none=True)
-        wm_out.loss.backward()
-        model_norm = self._clip(self.world_model.parameters(), c.model_grad_clip, "world model")
-        self.model_opt.step()
+        for _ in range(c.model_updates):
+            batch, wm_out, model_norm = self._world_model_update()
         world_model_done = time.perf_counter()
 
         start = wm_out.observed.latent.detach().reshape(-1)
@@ -306,6 +295,25 @@ class DreamerAgent:
         result["time/world_model_s"] = world_model_done - started
         result["time/behavior_s"] = time.perf_counter() - world_model_done
         return result
+
+    def _world_model_update(self) -> tuple[dict[str, Tensor], Any, Tensor]:
+        """One world-model update on a freshly replayed batch: (batch, loss output, grad norm)."""
+        c = self.config
+        batch = {
+            key: torch.as_tensor(value, device=self.device)
+            for key, value in self.replay.sample(
+                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
+                c.replay_terminal_fraction,
+            ).items()
+        }
+        with self._autocast():
+            wm_out = self.world_model.loss(batch, self.train_generator)
+        self._check_finite({"wm/loss": wm_out.loss}, wm_out.metrics)
+        self.model_opt.zero_grad(set_to_none=True)
+        wm_out.loss.backward()
+        model_norm = self._clip(self.world_model.parameters(), c.model_grad_clip, "world model")
+        self.model_opt.step()
+        return batch, wm_out, model_norm
 
     @staticmethod
     def _check_finite(losses: Mapping[str, Tensor], metrics: Mapping[str, Tensor]) -> None:

@@ -116,6 +116,12 @@ class DreamerConfig(Section):
     replay_terminal_fraction: float = Field(
         0.0, ge=0, le=1, description="share of each batch's windows that hold a stored terminal step"
     )
+    # Under uniform replay a step collected late in a run is replayed far fewer times than an
+    # early one, and a driver's crashes come late: extra world-model updates, each on its own
+    # batch, train the model on them more often without more actor-critic updates.
+    model_updates: int = Field(
+        1, ge=1, description="world-model updates per update (the extra ones world model only, each on a fresh batch)"
+    )
 
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
@@ -124,7 +130,7 @@ class DreamerConfig(Section):
     )
 
     omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-                       "reward_relabel_head": None, "terminal_weight": 1.0}
+                       "reward_relabel_head": None, "terminal_weight": 1.0, "model_updates": 1}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:
