@@ -19,14 +19,15 @@ from collections import Counter
 import numpy as np
 import torch
 
+from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.distributions import bounded_normal_params
 from d2a_core.artifacts import Store
+from d2a_core.sim.race_env import RaceEnv
 from terminal_fit import checkpoint_and_env, outcome_of  # beside this script, on sys.path when it runs
 
 
-def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) -> dict:
+def drive(agent: DreamerAgent, env: RaceEnv, episodes: int, explore: bool, seed: int) -> dict:
     """Mean actor mean, std and applied action over every step, and the episodes' outcomes."""
-    agent, env = checkpoint_and_env(store, human_id)
     actor, c = agent.behavior.actor, agent.config
     generator = torch.Generator().manual_seed(seed)
     means, stds, applied, outcomes = [], [], [], Counter()
@@ -64,8 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     for ref in args.humans:
         human_id = store.resolve(ref)
         env_step = store.get(human_id).labels["env_step"]
+        agent, env = checkpoint_and_env(store, human_id)
         for explore in (False, True):
-            r = drive(store, human_id, args.episodes, explore, args.seed)
+            r = drive(agent, env, args.episodes, explore, args.seed)
             fmt = lambda v: ", ".join(f"{x:.2f}" for x in v)  # noqa: E731
             outcomes = ", ".join(f"{k} {n}" for k, n in sorted(r["outcomes"].items()))
             print(f"| {human_id[:12]} ({env_step}) | {'sampled' if explore else 'mode'} | {fmt(r['mean'])} "

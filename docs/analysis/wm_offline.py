@@ -148,7 +148,7 @@ def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: 
             for _ in range(agent.updates_due(added)):
                 u += 1
                 agent.updates_done += 1
-                out = _update(agent)
+                _, out, _ = agent.world_model_update()
             if (t + 1) % (len(steps) // 5) == 0 or t == len(steps) - 1:
                 print(json.dumps({"env_steps": added, "updates": u, "seconds": round(time.perf_counter() - started, 1),
                                   **{k: round(v, 3) if isinstance(v, float) else v
@@ -158,25 +158,13 @@ def train(path: str, updates: int, overrides: list[str], eval_every: int, seed: 
         agent.observe(step)
     started = time.perf_counter()
     for u in range(1, updates + 1):
-        out = _update(agent)
+        _, out, _ = agent.world_model_update()
         if u % eval_every == 0 or u == updates:
             line = {"updates": u, "seconds": round(time.perf_counter() - started, 1),
                     "wm_loss": round(out.loss.item(), 3), **score(agent, data, held)}
             print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()}), flush=True)
 
 
-def _update(agent: DreamerAgent):
-    """One world-model update on a replayed batch (the sampling of training)."""
-    c = agent.config
-    batch = {k: torch.as_tensor(v) for k, v in agent.replay.sample(
-        c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
-        c.replay_terminal_fraction).items()}
-    out = agent.world_model.loss(batch, agent.train_generator)
-    agent.model_opt.zero_grad(set_to_none=True)
-    out.loss.backward()
-    torch.nn.utils.clip_grad_norm_(agent.world_model.parameters(), c.model_grad_clip)
-    agent.model_opt.step()
-    return out
 def score_checkpoints(path: str, store: Store, refs: list[str]) -> None:
     """Score stored checkpoints' own world models on the held-out recorded episodes."""
     data = dict(np.load(path))

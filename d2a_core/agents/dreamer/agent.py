@@ -260,7 +260,7 @@ class DreamerAgent:
         c = self.config
         started = time.perf_counter()
         for _ in range(c.model_updates):
-            batch, wm_out, model_norm = self._world_model_update()
+            batch, wm_out, model_norm = self.world_model_update()
         world_model_done = time.perf_counter()
 
         start = wm_out.observed.latent.detach().reshape(-1)
@@ -296,8 +296,10 @@ class DreamerAgent:
         result["time/behavior_s"] = time.perf_counter() - world_model_done
         return result
 
-    def _world_model_update(self) -> tuple[dict[str, Tensor], Any, Tensor]:
-        """One world-model update on a freshly replayed batch: (batch, loss output, grad norm)."""
+    def world_model_update(self) -> tuple[dict[str, Tensor], Any, Tensor]:
+        """One world-model update on a freshly replayed batch: (batch, loss output, grad norm).
+        `train_step` runs `model_updates` of them; offline tools (docs/analysis/wm_offline.py)
+        train the world model alone with it."""
         c = self.config
         batch = {
             key: torch.as_tensor(value, device=self.device)
