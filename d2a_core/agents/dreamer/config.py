@@ -77,6 +77,13 @@ class DreamerConfig(Section):
     return_norm_low: float = Field(5.0, ge=0, lt=100, description="lower percentile of the return range")
     return_norm_high: float = Field(95.0, gt=0, le=100, description="upper percentile of the return range")
     return_norm_limit: float = Field(1.0, gt=0, description="returns are divided by max(limit, hi - lo)")
+    # A crash that costs ~50x an ordinary episode's return sets the 5th percentile as soon as the
+    # world model imagines it in more than 5 % of trajectories; the scale then grows 2-10x and the
+    # actor's driving signal shrinks against its entropy bonus (docs/results.md, 27th session).
+    return_norm_scope: Literal["all", "running"] = Field(
+        "all", description="imagined returns whose percentiles set the scale: all (DreamerV3), or only those "
+                           "of trajectories the continue head keeps running through the horizon"
+    )
     discrete_actor_grad: Literal["reinforce"] = Field("reinforce", description="gradient for discrete actions")
     # DreamerV3's 2023 release trains continuous actors by backprop through the dynamics; its 2024
     # release uses REINFORCE for every action space. Backprop follows the local slope of the
@@ -130,7 +137,8 @@ class DreamerConfig(Section):
     )
 
     omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-                       "reward_relabel_head": None, "terminal_weight": 1.0, "model_updates": 1}
+                       "reward_relabel_head": None, "terminal_weight": 1.0, "model_updates": 1,
+                       "return_norm_scope": "all"}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:
