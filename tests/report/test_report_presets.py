@@ -39,7 +39,7 @@ def test_an_assistants_learner_value_set_in_its_assistant_section_is_named_once(
     assert describe(record) == "quick, except assistant.train_ratio=96.0"
     unset = {key: value for key, value in QUICK_ASSISTANT.items() if key != "train_ratio"}
     assert describe({"assistant": unset, "dreamer": {"train_ratio": 64.0}}) == "quick, except dreamer.train_ratio=64.0"
-    assert describe({"humans": {"env_steps": 40000}, "dreamer": {"train_ratio": 128.0}}) == \
+    assert describe({"humans": {"env_steps": 100000}, "dreamer": {"train_ratio": 128.0}}) == \
         "quick, except dreamer.train_ratio=128.0"
 
 
