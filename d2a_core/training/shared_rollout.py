@@ -280,6 +280,7 @@ class SharedCollector:
         clock = self._tick("acting/humans", clock)
         blended = np.clip(a_human + a_assist, -1.0, 1.0)
         task = np.zeros(self.n)
+        crash_steps_left = np.zeros(self.n)
         reset = np.zeros(self.n, bool)
         for i, env in enumerate(self.envs):
             if self._idle[i]:
@@ -304,6 +305,9 @@ class SharedCollector:
                 ep["human_action"].append(a_human[i].tolist())
                 ep["assistant_action"].append(a_assist[i].tolist())
             task[i] = info["reward_terms"]["task"]
+            if info["collision"] or info["off_track"]:
+                race = env.unwrapped
+                crash_steps_left[i] = max(0.0, round((race.time_limit_s - info["t"]) / race.cfg.dt))
             self._window.push(i, self._obs[i, -PARTNER_SLOT:])  # the slot's action moves into the window
             self._obs[i] = obs
             self._human_obs[i] = obs
@@ -329,10 +333,12 @@ class SharedCollector:
             pick_intent(r_star, choose) if use_experts else None,
             pick_intent(self._a_star, choose) if use_experts else None,
             self.reward_config if use_experts else _without_experts(self.reward_config),
+            crash_steps_left,
         )
         by_intent = None
         if self.reward_by_intent and use_experts:
-            by_intent = totals_by_intent(task, a_assist, a_human, r_star, self._a_star, self.reward_config)
+            by_intent = totals_by_intent(task, a_assist, a_human, r_star, self._a_star, self.reward_config,
+                                         crash_steps_left)
         if a_star_now is not None:
             self._a_star = a_star_now
         self._tick("expert_filtering", clock)
