@@ -540,6 +540,30 @@ class Store:
             raise NotFoundError(f"artifact {art.id[:12]} ({art.kind}) has no file {name!r}; files: {sorted(art.files)}")
         return self._checked_blob(art, name, ref)
 
+    def is_whole(self, ref: str) -> bool:
+        """Whether the artifact and everything in its lineage still have every manifest and blob
+        (of the recorded size) in the store. `verify --repair` moves damaged files to quarantine;
+        a command that finds its result not whole builds it again instead of reusing it."""
+        seen: set[str] = set()
+        stack = [self.resolve(ref)]
+        while stack:
+            art_id = stack.pop()
+            if art_id in seen:
+                continue
+            seen.add(art_id)
+            try:
+                art = Artifact(art_id, self._load_manifest(art_id))
+            except (NotFoundError, IntegrityError):
+                return False
+            for info in art.files.values():
+                try:
+                    if self._blob_path(info["sha256"]).stat().st_size != info["size"]:
+                        return False
+                except OSError:
+                    return False
+            stack.extend(art.inputs)
+        return True
+
     def read_bytes(self, ref: str, name: str, verify: bool = True) -> bytes:
         art = self.get(ref)
         if name not in art.files:

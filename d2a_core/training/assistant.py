@@ -51,8 +51,9 @@ from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
-from d2a_core.training.run_state import cached_result, save_atomic
+from d2a_core.training.run_state import RunDir, cached_result, result_record
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
+from d2a_core.training.torch_files import load_torch
 
 RUN_FORMAT = 1
 PAIRS = ("pass-stay", "left-right")
@@ -165,15 +166,24 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     intents = parse_pair(pair)
     method = get_method(method_name)
     cfg = method.configure(resolved.config, intents)
-    ac = cfg.assistant
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
     groups = load_population_groups(store, bundle, intents, humans_refs)
-    # each intent's reference population (its expert, the panel); with one per intent, all of them
-    populations = [group[0] for group in groups]
     population_ids = [pid for group in groups for pid, _ in group]
     # the sections the method depends on, as patched by the method (intent head, reward weights)
     config_record = {name: record(getattr(cfg, name)) for name in method.config_sections}
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
+    with RunDir(store, key).exclusive() as run:
+        return _run(store, bundle, pair, intents, method, cfg, groups, population_ids, config_record, key, run,
+                    seed, device, progress, move_aliases)
+
+
+def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...], method: Method, cfg: Any,
+         groups: list, population_ids: list[str], config_record: dict[str, Any], key: str, run: RunDir, seed: int,
+         device: str, progress: ProgressFn | None, move_aliases: bool) -> dict[str, Any]:
+    """The body of `_train`, with the run's lock held."""
+    ac = cfg.assistant
+    # each intent's reference population (its expert, the panel); with one per intent, all of them
+    populations = [group[0] for group in groups]
     cached = cached_result(store, "assistant-run", key, "run.json", id_key="run_id", notes=("time_shares", "time_s"))
     if cached:
         names = _aliases(bundle.track.name, pair, method.name, seed, cached["id"], cached["run_id"], move_aliases)
@@ -204,14 +214,11 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window), act_space, intents,
                                seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
-    run_dir = store.run_dir(key)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    state_path = run_dir / "state.pt"
     env_steps, checkpoints, curve, resumed_from, unassisted = 0, [], [], None, None
     drawn = [0] * len(population_ids)  # finished training episodes driven by each population's humans
     timer = _Timer()
-    if state_path.is_file():
-        saved = torch.load(state_path, map_location=device, weights_only=False)
+    saved = run.load_state(device)
+    if saved is not None:
         agent.load_state_dict(saved["agent"])
         env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
         unassisted, timer.seconds = saved["unassisted"], saved["timing"]
@@ -219,8 +226,7 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
         try:
             store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
         except NotFoundError as exc:
-            raise TrainingError(f"cannot resume the assistant from {state_path}: {exc}; delete {run_dir} "
-                                "to train from the start") from None
+            raise TrainingError(f"cannot resume the assistant from {run.state_path}: {exc}; {run.restart_hint}") from None
         resumed_from = env_steps
     else:
         store.hold_run(key, inputs)
@@ -292,9 +298,9 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
                 for name, seconds in collector.timing.items():
                     timer.add(name, seconds)
                 collector.timing.clear()
-                save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                             "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve,
-                             "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn}, state_path)
+                run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve,
+                                "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn})
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
             if checkpoints else ""
@@ -316,14 +322,14 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     timing = ("time_shares", "time_s")  # wall clock: in the manifest's provenance, not in the hashed files
     with store.create("assistant-run", inputs=[*inputs, *(c["id"] for c in checkpoints)], config=config_record,
                       seed=seed, labels={**tags, "run_key": key}) as writer:
-        writer.add_json("run.json", {k: v for k, v in result.items() if k not in ("resumed_from_env_step", *timing)})
+        writer.add_json("run.json", result_record(result, leave_out=timing))
         for name in timing:
             writer.note(name, result[name])
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id, move_aliases)
     moved = store.point_aliases(names)
-    state_path.unlink(missing_ok=True)
+    run.clear_state()
     store.release_run(key)
     return dict(result, run_id=writer.artifact.id, cached=False, aliases_moved=moved)
 
@@ -354,7 +360,8 @@ def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "
     section = section_type.model_validate(art.config[method.agent_section])
     window = int(art.config.get("assistant", {}).get("partner_window", 1))
     agent = method.builder()(section, assistant_observation_space(obs_space, window), act_space, intents, 0, device)
-    state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
+    state = load_torch(store.path(art.id, "agent.pt"), f"assistant {art.id[:12]} file 'agent.pt'", device,
+                       "the store holds a file that d2a did not write; remove the artifact or the store")
     agent.load_state_dict(state)
     return agent, method, intents, window
 

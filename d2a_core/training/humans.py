@@ -55,7 +55,8 @@ from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
-from d2a_core.training.run_state import cached_result, save_atomic
+from d2a_core.training.run_state import RunDir, cached_result, load_checked, result_record, save_atomic
+from d2a_core.training.torch_files import load_torch
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
@@ -131,7 +132,8 @@ def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu"
             f"{str(trained.observe_clearance).lower()}, {len(trained.edge_lookahead_m)} edge lookaheads), this env "
             f"gives {int(np.prod(obs_space.shape))}: use the env settings its population was trained with "
             "(--set env.observe_clearance=...)")
-    state = torch.load(store.path(art.id, "agent.pt"), map_location=device, weights_only=False)
+    state = load_torch(store.path(art.id, "agent.pt"), f"human checkpoint {art.id[:12]} file 'agent.pt'", device,
+                       "the store holds a file that d2a did not write; remove the artifact or the store")
     config = DreamerConfig.model_validate({**state["config"], "device": device})
     agent = DreamerAgent(obs_space, act_space, config, seed=0)
     agent.load_state_dict(state)
@@ -172,10 +174,20 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     if intent not in INTENTS:
         raise UsageError(f"unknown intent {intent!r}; choose from {', '.join(INTENTS)}")
     cfg = resolved.config
-    hc: HumansConfig = cfg.humans
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
     config_record = resolved.section(*SECTIONS)
     key = _run_key(bundle, intent, config_record, seed)
+    with RunDir(store, key).exclusive() as run:
+        return _run_population(store, bundle, intent, resolved, config_record, key, run, seed, device, progress,
+                               move_aliases)
+
+
+def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: ResolvedConfig,
+                    config_record: dict[str, Any], key: str, run: RunDir, seed: int, device: str,
+                    progress: ProgressFn | None, move_aliases: bool) -> dict[str, Any]:
+    """The body of `_train_population`, with the run's lock held."""
+    cfg = resolved.config
+    hc: HumansConfig = cfg.humans
     cached = cached_result(store, "population", key, "population.json")
     if cached:
         names = _aliases(bundle.track.name, intent, cached["id"], cached["expert"], move_aliases)
@@ -191,19 +203,16 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
 
     envs = [make_env() for _ in range(hc.num_envs)]
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)
-    run_dir = store.run_dir(key)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    state_path = run_dir / "state.pt"
+    run_dir = run.path
     env_steps, checkpoints, curve, resumed_from = 0, [], [], None
-    if state_path.is_file():
-        saved = torch.load(state_path, map_location=device, weights_only=False)
+    saved = run.load_state(device)
+    if saved is not None:
         agent.load_state_dict(saved["agent"])
         env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
         try:  # the state's checkpoints must still exist (run holds keep them from gc)
             store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
         except NotFoundError as exc:
-            raise TrainingError(f"cannot resume {intent} from {state_path}: {exc}; delete {run_dir} "
-                                "to train from the start") from None
+            raise TrainingError(f"cannot resume {intent} from {run.state_path}: {exc}; {run.restart_hint}") from None
         resumed_from = env_steps
     # resets after a resume use fresh seeds so the continued run does not replay old episodes
     spread = {"start_spread": hc.train_start_spread} if hc.train_start_spread else None
@@ -243,8 +252,8 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
                                                      config_record, seed, tags))
                 # hold before the state names the new checkpoint, so the holds always cover it
                 store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
-                save_atomic({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                              "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve}, state_path)
+                run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve})
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
             if checkpoints else ""
@@ -269,13 +278,13 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
               "resumed_from_env_step": resumed_from}
     with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
                       labels={**tags, "run_key": key}) as writer:
-        writer.add_json("population.json", {k: v for k, v in result.items() if k != "resumed_from_env_step"})
+        writer.add_json("population.json", result_record(result))
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     population = writer.artifact
     names = _aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases)
     moved = store.point_aliases(names)
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
-    state_path.unlink(missing_ok=True)
+    run.clear_state()
     snapshots.discard()
     store.release_run(key)
     return dict(result, id=population.id, cached=False, aliases=names, aliases_moved=moved)
@@ -316,7 +325,8 @@ class _Snapshots:
         return sorted(int(p.stem) for p in self.folder.glob("*.pt")) if self.folder.is_dir() else []
 
     def load(self, env_steps: int, device: str) -> dict[str, Any]:
-        return torch.load(self.folder / f"{env_steps}.pt", map_location=device, weights_only=False)
+        return load_checked(self.folder / f"{env_steps}.pt", device, "the weight snapshot",
+                            f"delete {self.folder.parent} to train this run from the start")
 
     def discard(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)
