@@ -62,6 +62,13 @@ HEX = re.compile(r"^[0-9a-f]+$")
 REF_CONTENT = re.compile(r"^([0-9a-f]{64})\n?$")  # exactly what tag() writes: any flipped byte fails
 ALIAS = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
 FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*(/[A-Za-z0-9][A-Za-z0-9_.+-]*)*$")
+
+
+def valid_file_name(name: object) -> bool:
+    """A file name an artifact may hold: relative, '/'-separated, never climbing out."""
+    return isinstance(name, str) and bool(FILE_NAME.match(name)) and ".." not in name.split("/")
+
+
 MIN_PREFIX = 4
 
 
@@ -484,6 +491,17 @@ class Store:
             raise BadFile("manifest does not match its id (modified)")
         if not isinstance(manifest["files"], dict) or not isinstance(manifest["inputs"], list):
             raise BadFile("manifest is malformed")
+        # names become paths on export: one that is absolute or climbs out (a forged manifest)
+        # must never be read as a file name
+        bad = [name for name in manifest["files"] if not valid_file_name(name)]
+        if bad:
+            raise BadFile(f"manifest names files outside the artifact ({', '.join(repr(b) for b in bad[:3])})")
+        for info in manifest["files"].values():
+            if not (isinstance(info, dict) and isinstance(info.get("sha256"), str) and FULL_ID.match(info["sha256"])
+                    and isinstance(info.get("size"), int)):
+                raise BadFile("manifest has a malformed file entry")
+        if not all(isinstance(i, str) and FULL_ID.match(i) for i in manifest["inputs"]):
+            raise BadFile("manifest has a malformed input id")
         # written canonically with a checksum of the whole file, so a flipped byte anywhere (the
         # unhashed provenance too) is caught; manifests from before the checksum only get the id check
         if "sha256" in manifest:
@@ -592,9 +610,14 @@ class Store:
         if directory.exists() and not directory.is_dir():
             raise UsageError(f"export destination {directory} exists and is not a directory")
         out = []
+        target = directory.resolve()
         for name in sorted(art.files):
             src = self._blob_path(art.files[name]["sha256"])
             dst = directory / name
+            # a link already in the destination must not carry a copy outside it either
+            if not dst.resolve().is_relative_to(target):
+                raise UsageError(f"export destination {dst} leads outside {directory} (a link?); nothing more "
+                                 "was exported")
             if dst.is_dir():
                 raise UsageError(f"export destination {dst} is a directory")
             with storage_errors(f"cannot export {name!r}", dst):
@@ -785,7 +808,7 @@ class ArtifactWriter:
         self._notes[key] = value
 
     def _check_name(self, name: str) -> None:
-        if not FILE_NAME.match(name) or ".." in name.split("/"):
+        if not valid_file_name(name):
             raise UsageError(f"invalid file name {name!r} in artifact")
         if name in self._files:
             raise UsageError(f"file {name!r} added twice to the artifact")

@@ -8,6 +8,7 @@ root protects. `verify --repair` moves such files to `quarantine/` so that gc wo
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import time
@@ -192,10 +193,17 @@ def gc(store: "Store", dry_run: bool = False) -> GcReport:
             if blob.name not in live_blobs:
                 report.blobs.append(blob.name)
                 report.bytes_freed += blob.stat().st_size
-        # with the exclusive lock held no writer is alive, so every temp file is an orphan
+        # with the exclusive lock held no writer is alive, so every temp file is an orphan; a
+        # store's own directories are never links (gc must not empty what a link points to)
+        for layout in (store._tmp, store._objects, store._manifests, store._runs):
+            if layout.is_symlink():
+                raise IntegrityError(f"gc removed nothing: {layout} is a link out of the store, not a directory "
+                                     "of it; replace it by a directory")
         temps = sorted(store._tmp.iterdir()) if store._tmp.is_dir() else []
-        report.temp_files = [t.name for t in temps]
-        report.bytes_freed += sum(t.stat().st_size for t in temps)
+        temps += _orphan_run_temps(store._runs)
+        report.temp_files = [t.relative_to(store.root).as_posix() if t.parent != store._tmp else t.name
+                             for t in temps]
+        report.bytes_freed += sum(t.lstat().st_size for t in temps)
         if not dry_run:
             with storage_errors("gc cannot remove files"):
                 for art_id in report.artifacts:
@@ -203,8 +211,38 @@ def gc(store: "Store", dry_run: bool = False) -> GcReport:
                 for digest in report.blobs:
                     store._blob_path(digest).unlink(missing_ok=True)
                 for tmp in temps:
-                    if tmp.is_dir():
+                    if tmp.is_dir() and not tmp.is_symlink():
                         shutil.rmtree(tmp)
                     else:
                         tmp.unlink(missing_ok=True)
     return report
+
+
+def _orphan_run_temps(runs: Path) -> list[Path]:
+    """Temp files (`*.tmp<pid>`) that killed training runs left in their run directories. A run
+    that is training holds its directory's lock; the temp files of the others are orphans."""
+    found: list[Path] = []
+    if not runs.is_dir():
+        return found
+    for run_dir in sorted(runs.iterdir()):
+        if run_dir.is_symlink() or not run_dir.is_dir():
+            continue
+        temps = [Path(top) / name for top, _, names in os.walk(run_dir)  # never follows links
+                 for name in names if ".tmp" in name]
+        if not temps:
+            continue
+        try:
+            fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue  # training now: its temp file is the state being saved
+        else:
+            found += temps
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        finally:
+            os.close(fd)
+    return found
+

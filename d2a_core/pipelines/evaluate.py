@@ -290,7 +290,7 @@ class _Session:
 
         store = self.store
         key = self.run_key(art_id)
-        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key]
+        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key and store.is_whole(a.id)]
         if done:
             return dict(store.read_json(done[-1].id, "eval.json")["result"], id=done[-1].id, cached=True)
         unassisted = self.unassisted()

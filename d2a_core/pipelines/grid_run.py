@@ -112,8 +112,9 @@ def config_fingerprint(preset: str, config_file: str | None, overrides: tuple[st
 
 
 def read_done(store, key: str) -> dict[str, Any] | None:
-    """The cell's record if it is done (every artifact it names exists and every alias points at
-    it), else None. `store` is a `d2a_core.artifacts.Store`."""
+    """The cell's record if it is done (every artifact it names exists whole, with its lineage,
+    and every alias points at it), else None: a cell whose output lost a blob to `verify
+    --repair` runs again and rebuilds it. `store` is a `d2a_core.artifacts.Store`."""
     from d2a_core.errors import D2AError
 
     path = record_path(store.root, key)
@@ -125,9 +126,8 @@ def read_done(store, key: str) -> dict[str, Any] | None:
         return None
     try:
         for alias, art_id in record["ids"].items():
-            if store.resolve(alias) != art_id:
+            if store.resolve(alias) != art_id or not store.is_whole(art_id):
                 return None
-            store.get(art_id)
     except (D2AError, OSError, KeyError, AttributeError):
         return None
     return record

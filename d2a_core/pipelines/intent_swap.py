@@ -198,7 +198,7 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
             identity = {"format": SWAP_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,
                         "specs": [vars(s) for s in specs], "humans": human_ids, "env": env_record}
             key = hashlib.sha256(canonical_json(identity)).hexdigest()
-            done = [a for a in store.list("intent-swap") if a.labels.get("run_key") == key]
+            done = [a for a in store.list("intent-swap") if a.labels.get("run_key") == key and store.is_whole(a.id)]
             if done:
                 results.append(dict(store.read_json(done[-1].id, "swap.json")["result"], id=done[-1].id, cached=True))
                 continue
