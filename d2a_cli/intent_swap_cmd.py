@@ -30,10 +30,10 @@ def intent_swap(
     baseline: BaselineOpt = None,
     seeds: AssistantSeedsOpt = None,
     humans: HumansOpt = None,
-    trials: Annotated[int, typer.Option("--trials", min=1, help="Trials per direction.")] = 10,
+    trials: Annotated[int, typer.Option("--trials", min=1, max=10_000, help="Trials per direction.")] = 10,
     window: Annotated[tuple[float, float], typer.Option(
         "--window", help="Earliest and latest swap time (s after the start).")] = (3.0, 8.0),
-    eval_seed: Annotated[int, typer.Option("--eval-seed", help="Seed of the trials (humans, swap times, env seeds).")] = 0,
+    eval_seed: Annotated[int, typer.Option("--eval-seed", min=0, max=2**31 - 1, help="Seed of the trials (humans, swap times, env seeds).")] = 0,
     envs: EnvsOpt = 8,
     *,
     run: RunContext,

@@ -80,7 +80,7 @@ def reproduce(
     methods: Annotated[Optional[list[str]], typer.Option(
         "--method", help="Assistant method (repeatable) [default: every implemented method].",
         show_default=False)] = None,
-    seeds: Annotated[int, typer.Option("--seeds", min=1, help="Assistant training seeds 0 .. N-1 per method.")] = 3,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, max=100, help="Assistant training seeds 0 .. N-1 per method.")] = 3,
     humans_seeds: Annotated[Optional[list[int]], typer.Option(
         "--humans-seed", help="Seed of the population per intent that every assistant seed trains with; "
                               "repeat it to train on several populations per intent (the first is the "
@@ -90,10 +90,10 @@ def reproduce(
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,
     episodes: Annotated[Optional[int], typer.Option(
-        "--episodes", min=1, help="eval: paired episodes per human [default: 1 smoke, 20 otherwise].",
+        "--episodes", min=1, max=10_000, help="eval: paired episodes per human [default: 1 smoke, 20 otherwise].",
         show_default=False)] = None,
     trials: Annotated[Optional[int], typer.Option(
-        "--trials", min=1, help="intent-swap: trials per direction [default: 1 smoke, 10 otherwise].",
+        "--trials", min=1, max=10_000, help="intent-swap: trials per direction [default: 1 smoke, 10 otherwise].",
         show_default=False)] = None,
     executor: Annotated[str, typer.Option("--executor", help="Where cells run: local or ray.")] = "local",
     ray_address: Annotated[Optional[str], typer.Option(

@@ -40,6 +40,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import tempfile
 from pathlib import Path
 from typing import IO, Any, Iterable, Iterator
@@ -55,7 +56,7 @@ from d2a_core.artifacts.manifest import (
 from d2a_core.artifacts import upkeep
 from d2a_core.artifacts.fsutil import CHUNK, BadFile, fsync_dir, os_reason, sha256_file, storage_errors
 from d2a_core.artifacts.leases import FULL_ID, HOLDS_FILE, HOLDS_FORMAT, Lease, read_run_holds
-from d2a_core.artifacts.upkeep import GcReport, VerifyProblem
+from d2a_core.artifacts.upkeep import SCRATCH_LOCK, SCRATCH_PREFIX, GcReport, VerifyProblem
 from d2a_core.errors import AmbiguousRefError, IntegrityError, NotFoundError, StoreError, UsageError
 
 HEX = re.compile(r"^[0-9a-f]+$")
@@ -208,6 +209,22 @@ class Store:
             if fd >= 0:
                 fcntl.flock(fd, fcntl.LOCK_UN)
                 os.close(fd)
+
+    @contextlib.contextmanager
+    def scratch_dir(self, prefix: str) -> Iterator[Path]:
+        """A private directory inside the store's tmp/ for files on their way into artifacts
+        (episode logs). It is removed on exit; a killed command's is left for `gc`, which
+        removes it once no process holds its lock."""
+        self._ensure_layout()
+        with storage_errors("cannot create a scratch directory", self._tmp):
+            path = Path(tempfile.mkdtemp(dir=self._tmp, prefix=f"{SCRATCH_PREFIX}{prefix}-"))
+            fd = os.open(path / SCRATCH_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield path
+        finally:
+            shutil.rmtree(path, ignore_errors=True)
+            os.close(fd)
 
     def _temp_file(self, suffix: str = "") -> tuple[IO[bytes], Path]:
         with storage_errors("cannot write to the store", self._tmp):

@@ -23,6 +23,10 @@ from d2a_core.errors import IntegrityError
 if TYPE_CHECKING:
     from d2a_core.artifacts.store import Store
 
+# `Store.scratch_dir`: a directory in tmp/ that a live command holds by a lock inside it
+SCRATCH_PREFIX = "scratch-"
+SCRATCH_LOCK = ".lock"
+
 
 @dataclass
 class VerifyProblem:
@@ -199,7 +203,7 @@ def gc(store: "Store", dry_run: bool = False) -> GcReport:
             if layout.is_symlink():
                 raise IntegrityError(f"gc removed nothing: {layout} is a link out of the store, not a directory "
                                      "of it; replace it by a directory")
-        temps = sorted(store._tmp.iterdir()) if store._tmp.is_dir() else []
+        temps = [t for t in sorted(store._tmp.iterdir()) if not _scratch_in_use(t)] if store._tmp.is_dir() else []
         temps += _orphan_run_temps(store._runs)
         report.temp_files = [t.relative_to(store.root).as_posix() if t.parent != store._tmp else t.name
                              for t in temps]
@@ -231,18 +235,27 @@ def _orphan_run_temps(runs: Path) -> list[Path]:
                  for name in names if ".tmp" in name]
         if not temps:
             continue
-        try:
-            fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            continue  # training now: its temp file is the state being saved
-        else:
+        if not _held(run_dir / "lock"):  # a run training now is saving its state into its temp file
             found += temps
-            fcntl.flock(fd, fcntl.LOCK_UN)
-        finally:
-            os.close(fd)
     return found
 
+
+
+def _held(lock_path: Path) -> bool:
+    """Whether a live process holds the flock on `lock_path` (a missing file: no one)."""
+    try:
+        fd = os.open(lock_path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # also releases a lock taken just now
+    return False
+
+
+def _scratch_in_use(path: Path) -> bool:
+    return path.name.startswith(SCRATCH_PREFIX) and not path.is_symlink() and path.is_dir() \
+        and _held(path / SCRATCH_LOCK)

@@ -24,7 +24,16 @@ PRESET_DIR = Path(__file__).parent / "presets"
 
 
 class _Loader(yaml.SafeLoader):
-    """SafeLoader that also reads YAML 1.2 floats such as `1e-4` (PyYAML reads them as strings)."""
+    """SafeLoader that also reads YAML 1.2 floats such as `1e-4` (PyYAML reads them as strings)
+    and refuses aliases: a config has no use for them, and they are how a few hundred bytes
+    expand into gigabytes ("billion laughs") or into a structure that contains itself."""
+
+    def compose_node(self, parent, index):  # noqa: ANN001 - PyYAML's signature
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(None, None, f"alias *{event.anchor} found: a config file may not "
+                                              "use YAML anchors and aliases", event.start_mark)
+        return super().compose_node(parent, index)
 
 
 _Loader.add_implicit_resolver(
@@ -47,9 +56,16 @@ def parse_yaml(text: str, source: str) -> Any:
         return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
+        where = f"{shorten(source)}:{mark.line + 1}:{mark.column + 1}" if mark else shorten(source)
         problem = getattr(exc, "problem", None) or str(exc)
         raise ConfigError(f"{where}: invalid YAML: {problem}") from None
+    except (ValueError, RecursionError) as exc:  # e.g. an integer of more digits than Python converts
+        raise ConfigError(f"{shorten(source)}: invalid YAML value: {shorten(str(exc))}") from None
+
+
+def shorten(text: str, limit: int = 200) -> str:
+    """`text`, cut to `limit` characters for a message (a value can be megabytes long)."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def available_presets() -> list[str]:
@@ -174,9 +190,9 @@ def _describe_errors(exc: ValidationError, schema: type[BaseModel], sources: dic
         if err["type"] == "extra_forbidden":
             hint = difflib.get_close_matches(key, known, n=3, cutoff=0.6)
             did_you_mean = f" (did you mean {', '.join(hint)}?)" if hint else ""
-            lines.append(f"unknown key '{key}' = {value!r} from {source}{did_you_mean}")
+            lines.append(f"unknown key '{key}' = {shorten(repr(value))} from {source}{did_you_mean}")
         else:
-            lines.append(f"invalid value for '{key}': {value!r} from {source}: {err['msg']}")
+            lines.append(f"invalid value for '{key}': {shorten(repr(value))} from {shorten(source)}: {err['msg']}")
     return "invalid configuration:\n  " + "\n  ".join(lines)
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -371,7 +370,7 @@ def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_
             raise UsageError(f"{name} seed {seed} was trained in another env config than {found[0][0]} seed "
                              f"{found[0][1]}; evaluate them separately")
     results = []
-    with tempfile.TemporaryDirectory(prefix="d2a-eval-") as tmp:
+    with store.scratch_dir("eval") as tmp:
         session = _Session(store, track_ref, pair, intents, env_record, humans_refs, episodes, eval_seed, n_envs,
                            device, Path(tmp))
         for k, (name, seed, art_id) in enumerate(found):

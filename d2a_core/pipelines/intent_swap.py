@@ -24,7 +24,6 @@ an MCAP log.
 from __future__ import annotations
 
 import hashlib
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -192,7 +191,7 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
     agents: list[Any] | None = None
     unassisted: list[dict] | None = None
     results = []
-    with tempfile.TemporaryDirectory(prefix="d2a-swap-") as tmp:
+    with store.scratch_dir("intent-swap") as tmp:
         logs_root = Path(tmp)
         for k, (name, seed, art_id) in enumerate(found):
             identity = {"format": SWAP_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import math
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -119,7 +118,7 @@ def make_track(
         raise UsageError(f"track name {track.name!r} cannot name an alias ({problem}); give another with --name")
     check_drivable(track, cfg.vehicle, cfg.env.car_width_m, str(src.path))
     track_config = resolved.section(*TRACK_SECTIONS)
-    with store.lease(), tempfile.TemporaryDirectory(prefix="d2a-make-track-") as tmp:
+    with store.lease(), store.scratch_dir("make-track") as tmp:
         tmp = Path(tmp)
         npz = tmp / "track.npz"
         track.save(npz)

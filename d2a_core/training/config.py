@@ -4,14 +4,25 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from d2a_core.config.section import Section
 from d2a_core.objectives.assistant import AssistantRewardConfig
 
 
+def _budget_holds_checkpoints(section):
+    """Every checkpoint needs at least one step of every env: a budget below checkpoints x envs
+    would train past itself to reach them."""
+    if section.env_steps < section.checkpoints * section.num_envs:
+        raise ValueError(f"env_steps ({section.env_steps}) must be at least checkpoints x num_envs "
+                         f"({section.checkpoints} x {section.num_envs} = {section.checkpoints * section.num_envs})")
+    return section
+
+
 class HumansConfig(Section):
     """The population run: length, parallel envs, checkpoint schedule, evaluation."""
+
+    _budget = model_validator(mode="after")(_budget_holds_checkpoints)
 
     env_steps: int = Field(2_000_000, gt=0, description="environment steps per intent (all envs together)")
     num_envs: int = Field(4, ge=1, le=64, description="envs stepped in parallel during collection")
@@ -52,6 +63,8 @@ class HumansConfig(Section):
 class AssistantConfig(Section):
     """The assistant run (paper Algorithm 1, second phase): its reward and intent head. A method
     (`d2a_core.training.methods`) sets the reward's alpha_r and alpha_a and adds the intent head."""
+
+    _budget = model_validator(mode="after")(_budget_holds_checkpoints)
 
     reward: AssistantRewardConfig = AssistantRewardConfig()
     intent_scale: float = Field(1.0, ge=0, description="weight of the intent head's NLL in the world-model loss")

@@ -23,7 +23,6 @@ import hashlib
 import io
 import json
 import shutil
-import tempfile
 import time
 from collections import deque
 from collections.abc import Callable
@@ -361,7 +360,7 @@ def _fill_imperfect(store: Store, agent: DreamerAgent, bundle: TrackBundle, make
 def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, make_env, intent: str,
                       env_steps: int, hc: HumansConfig, config_record: dict[str, Any], seed: int,
                       tags: dict[str, str]) -> dict[str, Any]:
-    with tempfile.TemporaryDirectory(prefix="d2a-eval-logs-") as logs:
+    with store.scratch_dir("checkpoint-eval") as logs:
         episodes = evaluate(agent, make_env, hc.eval_episodes, seed=10_000_019 + seed, n_envs=hc.eval_envs,
                             log_dir=Path(logs), log_episodes=hc.eval_logs)
         metrics = aggregate(episodes)
