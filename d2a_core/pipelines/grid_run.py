@@ -261,19 +261,25 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
         if spec.device:
             cmd += ["--device", spec.device]
         attempts, outcome = 0, {}
+        stopped = {"status": "failed", "exit_code": 130, "error": "the grid was stopped"}
         while True:
             if _STOPPING.is_set():
-                outcome = {"status": "failed", "exit_code": 130, "error": "the grid was stopped"}
+                outcome = stopped
                 break
             attempts += 1
             with open(log, "ab") as err:
                 err.write(f"--- {datetime.now(timezone.utc).isoformat(timespec='seconds')} attempt {attempts}: "
                           f"{' '.join(cmd)}\n".encode())
                 err.flush()
-                proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
-                                        env=cell_env(spec.threads),
-                                        preexec_fn=functools.partial(_die_with_parent, os.getpid()))
+                # launched and registered under the lock that terminate_cells takes after setting
+                # _STOPPING: a stop either finds this cell in _LIVE or is seen here before launch
                 with _LIVE_LOCK:
+                    if _STOPPING.is_set():
+                        outcome = stopped
+                        break
+                    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
+                                            env=cell_env(spec.threads),
+                                            preexec_fn=functools.partial(_die_with_parent, os.getpid()))
                     _LIVE.add(proc)
                 try:
                     out, _ = proc.communicate()

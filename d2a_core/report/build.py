@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from d2a_core.artifacts import Store
+from d2a_core.errors import UsageError
 from d2a_core.report import render
 from d2a_core.report.collect import Collected, collect, nothing_to_report
 from d2a_core.report.figures import make_figures
@@ -50,6 +51,8 @@ def build_report(store: Store, tracks: Sequence[str] | None = None, pairs: Seque
     """Build (or find, when unchanged) the report of `tracks` and `pairs` (all when empty)."""
     tracks = sorted(set(tracks)) if tracks else None
     pairs = sorted(set(pairs)) if pairs else None
+    if out is not None and Path(out).exists() and not Path(out).is_dir():  # before minutes of building
+        raise UsageError(f"--out {out} exists and is not a directory; give a directory")
     if store.count() == 0:  # before the lease, which would create a store where there is none
         raise nothing_to_report(store, tracks, pairs)
     with store.lease():
