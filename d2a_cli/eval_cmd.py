@@ -45,6 +45,7 @@ def eval_assistants(
     """Paired evaluation: each human unassisted and with each assistant, on the same episodes."""
     # imported here, not at module level: it pulls in torch, which every other `d2a` command
     # would then pay for at start-up (seconds)
+    from d2a_core.evaluation.safety import COLLISION_MARGIN
     from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
@@ -69,6 +70,12 @@ def eval_assistants(
                 table.add_row("intent F1", *("-" if e["intents"][intent]["intent_f1"] is None
                                              else f"{e['intents'][intent]['intent_f1']:.3f}" for e in shown))
                 out_console.print(table)
+        for e in r["evaluations"]:
+            for flag in e.get("collision_flags", []):
+                out_console.print(
+                    f"[bold red]safety:[/] {_title(e)} raises the collision rate of the {flag['intent']} "
+                    f"{flag['group'].replace('_', '-')} humans by {flag['collision_change']:+.2f} (more than "
+                    f"{COLLISION_MARGIN:.2f})", highlight=False)
 
     run.emit(result, render)
 

@@ -37,6 +37,7 @@ from d2a_core.artifacts import Store, canonical_json
 from d2a_core.errors import NotFoundError, UsageError
 from d2a_core.evaluation.criteria import CRITERION_KEY, criterion_value
 from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
+from d2a_core.evaluation.safety import collision_flags
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
@@ -224,8 +225,11 @@ def evaluate(store: Store, track_ref: str, pair: str, method: str | None = None,
     if assistants and (method or baselines or seeds):
         raise UsageError("--assistant names the assistants itself; drop --method, --baseline and --seed")
     with store.lease():
-        return _evaluate(store, track_ref, pair, [method or "dream2assist", *baselines], seeds, humans, episodes,
-                         eval_seed, n_envs, device, progress, assistants)
+        result = _evaluate(store, track_ref, pair, [method or "dream2assist", *baselines], seeds, humans, episodes,
+                           eval_seed, n_envs, device, progress, assistants)
+    for evaluation in result["evaluations"]:  # read off the stored numbers, so stored results get it too
+        evaluation["collision_flags"] = collision_flags(evaluation)
+    return result
 
 
 class _Session:

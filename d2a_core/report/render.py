@@ -17,11 +17,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from d2a_core.evaluation.safety import COLLISION_MARGIN
 from d2a_core.report.figures import Plot
 from d2a_core.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, CONFIDENCE, MIN_SEEDS
 from d2a_core.report.tables import DECIMALS, HEADERS, HIGHER_IS_BETTER, SWAP_METRICS
 
 UP, DOWN, IMPROVED = "↑", "↓", "▲"
+UNSAFE = "⚠ unsafe"  # a collision change that breaks the safety rule (`evaluation.safety`)
 SHORT = 12
 
 
@@ -78,7 +80,8 @@ def _ours_change(cell: dict[str, Any], metric: str, ran: bool) -> Cell:
         # a method that ran but has no value here: evaluations older than the metric
         return Cell(["not recorded" if ran else "not run"])
     d = DECIMALS[metric]
-    lines = [f"{_num(cell['mean'], d)} ± {cell['std']:.{d}f}" + (f" {IMPROVED}" if cell["improved"] else ""),
+    lines = [f"{_num(cell['mean'], d)} ± {cell['std']:.{d}f}" + (f" {IMPROVED}" if cell["improved"] else "")
+             + (f" {UNSAFE}" if cell.get("unsafe") else ""),
              f"CI {cell['ci_text']} · IQM {_num(cell['iqm'], d)}"]
     return Cell(lines, bold=cell.get("best", False), improved=cell["improved"], title=_sources_title(cell["sources"]))
 
@@ -124,6 +127,11 @@ def change_blocks(tables: Sequence[dict[str, Any]]) -> list[Block]:
                              Cell([f"`{t['paper_table']}`" if any(r["cells"][m]["paper"] for m in t["metrics"])
                                    else "-"])])
         blocks.append(Block("table", table=Table(header, rows)))
+        if t.get("unsafe"):
+            blocks.append(Block("p", (
+                f"{UNSAFE} **Safety rule broken** by {', '.join(names[m] for m in t['unsafe'])}: with assistance these "
+                f"humans collide more often than unassisted by more than {COLLISION_MARGIN:.2f} (a share of "
+                "episodes), on the mean over every (training seed, human) value.")))
     return blocks
 
 

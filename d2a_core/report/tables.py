@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from d2a_core.evaluation.criteria import CRITERION_KEY
+from d2a_core.evaluation.safety import breaks_collision_rule
 from d2a_core.report import paper
 from d2a_core.report.collect import Collected, Evaluation, method_key
 from d2a_core.report.stats import MIN_SEEDS, bootstrap_ci, ci_text, iqm, mean_std
@@ -144,6 +145,8 @@ def _change_table(data: Collected, track: str, pair: str, intent: str, group: st
                 ref["improved"] = improved(ref["mean"], m)
             cell["paper"] = ref
             cells[m] = cell
+        # the safety rule (`evaluation.safety`), on the mean over every (training seed, human) value
+        cells["collision"]["unsafe"] = ran and breaks_collision_rule(cells["collision"]["mean"])
         rows.append({"method": method, "name": paper.paper_name(method), "ran": ran,
                      "seeds": sorted({e.seed for e in by_method.get(method, []) if e.id in sources}),
                      "cells": cells, "sources": sources})
@@ -162,6 +165,7 @@ def _change_table(data: Collected, track: str, pair: str, intent: str, group: st
         "preset": {"assistants": sorted({e.preset for e in used_evaluations}),
                    "humans": _humans_preset(data, used_evaluations)},
         "rows": rows, "sources": sorted({e.id for e in used_evaluations}),
+        "unsafe": [r["method"] for r in rows if r["ran"] and r["cells"]["collision"]["unsafe"]],
     }
 
 

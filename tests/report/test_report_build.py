@@ -78,6 +78,9 @@ def test_the_change_table_has_the_hand_computed_cells(built):
     assert [r["method"] for r in near["rows"]] == ["dreamer", "dream2assist"]  # no paper rows for near-perfect
     assert near["paper_table"] is None and _row(near, "dream2assist")["cells"]["progress_m"]["mean"] == -1.0
     assert not _row(near, "dream2assist")["cells"]["intent_criterion"]["improved"]  # -0.5: lost its goal
+    # the safety rule: collisions up by 0.1 > 0.05 on the near-perfect humans, down on the imperfect ones
+    assert near["unsafe"] == ["dream2assist"] and _row(near, "dream2assist")["cells"]["collision"]["unsafe"]
+    assert table["unsafe"] == [] and not _row(table, "dream2assist")["cells"]["collision"]["unsafe"]
 
 
 def test_f1_and_intent_swap_tables(built):
