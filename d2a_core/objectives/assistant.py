@@ -57,6 +57,8 @@ from d2a_core.config.section import Section
 class AssistantRewardConfig(Section):
     """Weights of the assistant's reward (paper equation 6)."""
 
+    omit_at_default = {"crash_forfeit": False}
+
     w_interv: float = Field(1.0, ge=0, description="weight of the intervention norm ||a_A||_2 (the paper's: 1)")
     alpha_r: float = Field(1.0, ge=0, description="weight of the expert world model's reward r_hat*(y_hat)")
     alpha_a: float = Field(
