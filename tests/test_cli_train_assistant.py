@@ -251,3 +251,28 @@ def test_usage_errors_name_what_to_do(cli, pair_store):
     res = cli("train-assistant", *PAIR, *SMOKE, "--set", "env.observe_clearance=true", "--json", store=pair_store)
     assert res.code == 2 and "env.observe_clearance=false" in res.json["error"]["message"]
     assert {art.id for art in Store(pair_store).list()} == before
+
+
+def test_every_methods_checkpoint_loads_through_the_restricted_unpickler(trained_assistants):
+    """What every method stores (a torch state dict; no-rssm's holds numpy arrays) loads with
+    nothing but tensors and plain data, as it did with the unrestricted unpickler."""
+    import torch
+
+    from d2a_core.training.torch_files import load_torch
+
+    store_dir, result = trained_assistants
+    store = Store(store_dir)
+    for run in result["assistants"]:
+        path = store.path(run["id"], "agent.pt")
+        safe, full = load_torch(path, run["id"]), torch.load(path, weights_only=False)
+        assert sorted(safe) == sorted(full)
+        flat_safe = torch.utils._pytree.tree_flatten(safe)[0]
+        flat_full = torch.utils._pytree.tree_flatten(full)[0]
+        assert len(flat_safe) == len(flat_full)
+        for a, b in zip(flat_safe, flat_full):
+            if isinstance(a, torch.Tensor):
+                assert torch.equal(a, b)
+            elif isinstance(a, np.ndarray):
+                assert np.array_equal(a, b)
+            else:
+                assert a == b
