@@ -232,6 +232,31 @@ def test_a_full_disk(tmp_path):
     assert proc.returncode == 1 and "No space left on device" in proc.stdout
 
 
+@pytest.mark.skipif(not _can_mount(), reason="needs root and unshare to mount a read-only or full filesystem")
+def test_a_full_disk_while_a_run_saves_its_state(tmp_path):
+    """A run directory on a 64 KiB tmpfs and a state of 1 MB: the error names the state's path and
+    the OS reason, no temp file stays behind, and the previous state is untouched."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    script = (
+        "import sys, torch; from pathlib import Path; from d2a_core.training.run_state import save_atomic\n"
+        "from d2a_core.errors import StoreError\n"
+        f"path = Path({str(run_dir)!r}) / 'state.pt'\n"
+        "save_atomic({'small': torch.zeros(8)}, path)\n"
+        "try:\n    save_atomic({'big': torch.zeros(250_000)}, path)\nexcept StoreError as exc:\n    print(exc)\n"
+        "print(sorted(p.name for p in path.parent.iterdir()))\n"
+        "from d2a_core.training.run_state import load_checked\n"
+        "print(sorted(load_checked(path, 'cpu', 'state', '')))\n")
+    proc = subprocess.run(["unshare", "-m", "sh", "-c", f"mount -t tmpfs -o size=64k tmpfs {run_dir} && "
+                           f"exec {sys.executable} -c \"$0\"", script], capture_output=True, text=True, cwd=REPO,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    message, listing, kept = proc.stdout.splitlines()[:3]
+    assert "cannot save the run state" in message and "No space left on device" in message
+    assert str(run_dir / "state.pt") in message and "enforce fail" not in message
+    assert listing == "['state.pt']" and kept == "['small']"
+
+
 # --------------------------------------------------------------------------- 7. NaN and infinity
 def test_non_finite_config_values_are_usage_errors(store):
     for value in ("reward.c_pass=.nan", "dreamer.model_lr=.inf", "opponents.pace_max=-.inf", "reward.c_pass=1e999"):
