@@ -375,3 +375,29 @@ def test_the_same_grid_on_a_local_ray_cluster(local_run, tmp_path):
               for s in (a, b))
     assert all(np.array_equal(sa[k], sb[k]) for k in sa.files)
     assert b.resolve("report/latest") == res.json["report"]
+
+
+def test_a_stop_that_lands_while_a_cell_launches_stops_that_cell(tmp_path, monkeypatch):
+    """Ctrl-C (terminate_cells) arriving between a cell's launch and its registration must still
+    reach the cell: it ends within seconds, not when its 30 s command would have."""
+    import threading
+
+    from d2a_core.pipelines import grid_run
+
+    real_popen = grid_run.subprocess.Popen
+
+    def launching(cmd, **kwargs):
+        threading.Thread(target=grid_run.terminate_cells).start()
+        time.sleep(0.3)  # the stop lands while this cell is being launched
+        return real_popen(["sleep", "30"], **kwargs)
+
+    monkeypatch.setattr(grid_run.subprocess, "Popen", launching)
+    spec = grid_run.CellSpec(name="cell", kind="make-track", argv=["make-track", "straightaway"], key="stop-test",
+                             store=str(tmp_path / "store"))
+    started = time.monotonic()
+    try:
+        outcome = grid_run.run_cell(spec)
+    finally:
+        grid_run._STOPPING.clear()
+    assert time.monotonic() - started < 10
+    assert outcome["status"] == "failed"
