@@ -306,8 +306,7 @@ class SharedCollector:
                 ep["assistant_action"].append(a_assist[i].tolist())
             task[i] = info["reward_terms"]["task"]
             if info["collision"] or info["off_track"]:
-                race = env.unwrapped
-                crash_steps_left[i] = max(0.0, round((race.time_limit_s - info["t"]) / race.cfg.dt))
+                crash_steps_left[i] = env.unwrapped.steps_left
             self._window.push(i, self._obs[i, -PARTNER_SLOT:])  # the slot's action moves into the window
             self._obs[i] = obs
             self._human_obs[i] = obs
