@@ -3,7 +3,7 @@
 Runs `train_assistant` for a short stretch (the `quick` model and collection settings, one
 checkpoint, a small panel) on populations already in a store, and prints one JSON object with
 the share of wall time in acting (assistant, humans), expert filtering, simulation, learning and
-the panel evaluation, and collection steps/s. Issue 13's target: acting and expert filtering
+the panel evaluation, and collection steps/s. The target: acting and expert filtering
 together <= 15 % of the training loop's time (evaluation excluded, it is per checkpoint).
 
     python benchmarks/assistant.py --store /tmp/grid/store --humans PASS_POP --humans STAY_POP --steps 4000

@@ -5,7 +5,7 @@ Runs `d2a_core.pipelines.evaluate.evaluate` (the code behind `d2a eval`) on assi
 populations already in a store, then steps the same track's `RaceEnv` alone with a fixed action
 for as many steps, and prints one JSON object: the evaluation's wall time, episodes and env steps,
 its env steps/s, the bare env's steps/s, and their ratio (the share of the bare env's speed the
-whole protocol keeps: humans, assistants, MCAP logs and storing included). Issue 14's target: a
+whole protocol keeps: humans, assistants, MCAP logs and storing included). The target: a
 `quick` evaluation (one seed, two methods, 20 episodes per human) in <= 5 min on 2 cores.
 
     python benchmarks/evaluate.py --store /tmp/grid/store --baseline dreamer --seed 0 \\

@@ -1,4 +1,4 @@
-"""The CLI under the failures of issue 18: every case exits 0/1/2/3 as documented, names what is
+"""The CLI under failures: every case exits 0/1/2/3 as documented, names what is
 at fault, and prints no Python traceback."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The store under faults, through its Python API (issue 18): gc roots, bad refs, hash-checked
+"""The store under faults, through its Python API: gc roots, bad refs, hash-checked
 reads, unreadable manifests and their repair, unusable store paths."""
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ and the expert's actor samples inside [-1, 1]. A push past the limit changes not
 action; `clip_blend: false` restores the unclipped sum.
 
 **w_interv.** The paper's intervention term has unit weight (`r^interv = -||a_A||_2`), the
-default here; issue 13 asks for it to be chosen by a small documented sweep.
+default here; a small sweep of it is in docs/experiments (assistant reward).
 
 **A crash must not pay.** The intervention term charges every step the assistant acts, and a
 crash ends the episode: an assistant that intervenes ~1 per step can end a charge larger than
