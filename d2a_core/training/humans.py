@@ -161,8 +161,9 @@ def train_population(
 
 def driver_dreamer_config(cfg: Config, device: str = "cpu") -> DreamerConfig:
     """The drivers' DreamerV3 settings: `dreamer.*` with the `humans.*` keys that override it."""
-    # A short run's world model must fit rare crash terminals in few updates (docs/results.md,
-    # "Why left fails"); the drivers may learn faster than the assistant, which shares `dreamer`.
+    # A short run's world model must fit rare crash terminals in few updates
+    # (docs/experiments/crash-blind-world-model.md, "Why left fails"); the drivers may learn faster
+    # than the assistant, which shares `dreamer`.
     hc = cfg.humans
     own = {"model_lr": hc.model_lr, "terminal_weight": hc.terminal_weight}
     return cfg.dreamer.model_copy(update={"device": device, **{k: v for k, v in own.items() if v is not None}})

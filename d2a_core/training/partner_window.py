@@ -8,8 +8,8 @@ Why: under shared control the car's state mixes both drivers' actions, and only 
 actions carry the intent. A classifier on a 16-step window of the human's actions separates the
 training humans' intents on 0.985 of steps (per-step F1, held-out episodes) where the assistant's
 world model, which sees one action per step through its stochastic latent, reaches 0.78
-(docs/results.md, "how much of the intent the human's actions carry"). K = 1 is the paper's
-observation and leaves every array as it was.
+(docs/experiments/intent-estimate.md, "How much of the intent the human's actions carry"). K = 1
+is the paper's observation and leaves every array as it was.
 """
 
 from __future__ import annotations

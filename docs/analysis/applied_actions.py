@@ -3,7 +3,7 @@ stored `d2a eval`'s per-step log (`steps.npz`): the human's and the assistant's 
 applied (blended, clipped) action's mean and spread, and the per-step correlation of the
 assistant's action with the human's (negative: the assistant cancels the human). An assistant
 that serves the intent drives pass and stay drivers differently; one that ignores it applies the
-same action to both. docs/results.md, "thirteenth session" (issue 13).
+same action to both. docs/experiments/assistant-policy.md, "One action for every driver".
 
     python docs/analysis/applied_actions.py STORE EVAL_ID [EVAL_ID ...]
 """

@@ -1,8 +1,8 @@
 """Stored `d2a eval` results as one markdown table: per evaluation, the assistant (method, seed,
 checkpoint), per-step intent F1 overall and per intent, and for each intent's imperfect and
 near-perfect humans the change in progress, the intent's own criterion unassisted → assisted,
-the change in collision rate and the intervention. docs/results.md reports held-out humans with
-it (issue 13).
+the change in collision rate and the intervention. The protocol tables of docs/results.md
+("Straightaway, pass-stay (Table 1)"), training and held-out humans, come from it.
 
     python docs/analysis/eval_table.py STORE EVAL_ID [EVAL_ID ...]
 

@@ -1,7 +1,8 @@
-"""The table of docs/results.md, "what the intent estimate reads, step by step": per human of a
-`d2a eval` artifact, the estimate's probability of the true intent, the human's and the
-assistant's acceleration, by part of the episode (each episode cut by its own length), means
-over the human's assisted episodes; prints a Markdown table.
+"""The table of docs/experiments/intent-estimate.md, "What the estimate reads, step by step" (and
+of docs/results.md, "Straightaway, pass-stay (Table 1)"): per human of a `d2a eval` artifact, the
+estimate's probability of the true intent, the human's and the assistant's acceleration, by part
+of the episode (each episode cut by its own length), means over the human's assisted episodes;
+prints a Markdown table.
 
     python docs/analysis/intent_by_episode_part.py STORE EVAL_ID
 """

@@ -1,5 +1,5 @@
-"""How much of the intent the human's own actions carry: docs/results.md, "how much of the
-intent the human's actions carry" (issue 13).
+"""How much of the intent the human's own actions carry: docs/experiments/intent-estimate.md,
+"How much of the intent the human's actions carry".
 
 From the assisted episodes of a `d2a eval` artifact or of an assistant checkpoint's panel (their
 `steps.npz`: the human's action at every step), a gradient-boosted classifier (scikit-learn)

@@ -1,6 +1,7 @@
 """The intent head's accuracy along assistant runs: on its own replay batches (`wm/intent_accuracy`,
 the data it is trained on) and on the run's recent training episodes (`episode/intent_accuracy`),
-one line per run. docs/results.md, "eighth session" (issue 13).
+one line per run. docs/experiments/intent-estimate.md, "The humans' mode actions in training
+(adopted)".
 
     python docs/analysis/intent_head_curves.py STORE OUT.png RUN_ID [RUN_ID ...]
 

@@ -1,5 +1,5 @@
-"""Is the intent in the assistant's model state? docs/results.md, "a probe of the model state"
-(issue 13).
+"""Is the intent in the assistant's model state? docs/experiments/intent-estimate.md, "Is the
+intent in the model state? A probe".
 
 The intent head reads the assistant's model state and reaches per-step F1 0.7-0.8 on the panel,
 where a classifier on the human's 16 previous actions reaches 0.98 (intent_from_human_actions.py).

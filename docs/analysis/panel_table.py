@@ -1,7 +1,8 @@
 """The training panel of assistant runs as a markdown table: per checkpoint, the intent estimate's
 per-step F1, what assistance changed for the weak humans and the experts of each intent (the
-issue-13 criterion), and the estimate's accuracy per panel group. The rows docs/results.md
-reports for every issue-13 lever.
+panel rule: the weak humans gain progress, the experts keep >= 95 % of theirs), and the
+estimate's accuracy per panel group. The panel tables of docs/results.md and docs/experiments/
+come from it.
 
     python docs/analysis/panel_table.py STORE RUN_ID [RUN_ID ...]
 

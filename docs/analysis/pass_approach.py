@@ -3,7 +3,7 @@ episode logs of stored `d2a eval` results: per human of one intent, over its ass
 the share that collided, the smallest lateral gap |de| while closing in or alongside (ds in
 [-12 m, +2 m]), and the mean steer and throttle of the human and of the assistant there. An
 assistant whose steer is the human's negated holds the car on its line against the driver.
-docs/results.md, "twenty-fourth session" (issue 13).
+docs/experiments/assistant-policy.md, "One passing side for everyone (open)".
 
     python docs/analysis/pass_approach.py STORE EVAL_ID [EVAL_ID ...] [--intent pass]
 """

@@ -2,8 +2,8 @@
 `d2a eval` results: per human, the share of steps on the opponent's left (`share_left`), the
 episodes that held the left or the right, and collisions with the car and with the barrier. An
 assistant that has learnt one passing side and imposes it shows as drivers moved to that side
-whatever side they took alone, and as car collisions where the two disagree. docs/results.md,
-"twenty-fourth session" (issue 13).
+whatever side they took alone, and as car collisions where the two disagree.
+docs/experiments/assistant-policy.md, "One passing side for everyone (open)".
 
     python docs/analysis/passing_side.py STORE EVAL_ID [EVAL_ID ...] [--intent pass]
 

@@ -1,5 +1,6 @@
 """Does the assistant's own model say that pass and stay drivers want different throttles?
-docs/results.md, "fifteenth session" (issue 13).
+docs/experiments/assistant-policy.md, "The model does not see what the pass intent pays: reward
+relabelling (adopted)".
 
 Dream2assist reads the intent (per-step F1 0.90-0.97) and then applies one throttle to every
 driver. Either its world model (reward head and dynamics) does not make the reward of a throttle

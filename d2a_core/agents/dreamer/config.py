@@ -79,7 +79,8 @@ class DreamerConfig(Section):
     return_norm_limit: float = Field(1.0, gt=0, description="returns are divided by max(limit, hi - lo)")
     # Meant to keep an imagined crash (~50x an ordinary return) out of the scale. Measured on 2 pass
     # seeds it did not lower it: bootstrap values carry the crash into running trajectories too
-    # (docs/results.md, twenty-eighth session). Kept, off, so the runs can be repeated.
+    # (docs/experiments/crash-blind-world-model.md, "`dreamer.return_norm_scope=running`"). Kept,
+    # off, so the runs can be repeated.
     return_norm_scope: Literal["all", "running"] = Field(
         "all", description="imagined returns whose percentiles set the scale: all (DreamerV3), or only those "
                            "of trajectories the continue head keeps running through the horizon"
