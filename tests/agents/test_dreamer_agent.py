@@ -297,30 +297,6 @@ def test_config_validation():
         DreamerConfig(extra_heads=[HeadConfig(name="a", kind="categorical")] * 2)
 
 
-def test_recency_keys_reach_the_replay_sampler(make_agent, fill_random):
-    """With every window recent and a recent span of one window, each update trains on the newest
-    steps of the streams; without the keys, on windows spread over the whole replay."""
-    steps, length = 60, 8
-    first_steps = {}
-    for fraction in (0.0, 1.0):
-        agent = make_agent(replay_recent_fraction=fraction, replay_recent_steps=1, batch_length=length)
-        counter = iter(range(steps))
-        fill_random(agent, steps, step=lambda transition: np.full(2, next(counter)))
-        sample, seen = agent.replay.sample, []
-
-        def spy(*args):
-            batch = sample(*args)
-            seen.append(batch["step"][:, 0].copy())
-            return batch
-
-        agent.replay.sample = spy
-        for _ in range(3):
-            agent.train_step()
-        first_steps[fraction] = np.concatenate(seen)
-    assert (first_steps[1.0] == steps - length).all()
-    assert (first_steps[0.0] < steps - length).any()
-
-
 def test_loaded_agent_saves_the_optimiser_state_it_loaded(make_agent, fill_random):
     """The optimisers are built on first use; an agent loaded and saved again without training
     keeps the loaded Adam moments, and its first update is the original's."""
@@ -365,27 +341,3 @@ def test_an_agent_that_only_acts_does_not_build_its_optimisers(make_agent, fill_
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines()[-2:] == ["acting imported torch._dynamo: False",
                                             "training imported torch._dynamo: True"]
-
-
-def test_model_updates_step_the_world_model_that_many_times_and_the_actor_once(make_agent, fill_random):
-    """`model_updates=3`: each update draws three batches and steps the world model's optimiser
-    three times, the actor's and critic's once; updates_done counts the update once."""
-    agent = make_agent(model_updates=3)
-    fill_random(agent, 30)
-    sample, draws = agent.replay.sample, []
-
-    def spy(*args):
-        draws.append(1)
-        return sample(*args)
-
-    agent.replay.sample = spy
-    for _ in range(2):
-        agent.train_step()
-
-    def steps(opt):
-        return int(next(iter(opt.state_dict()["state"].values()))["step"])
-
-    assert len(draws) == 6
-    assert steps(agent.model_opt) == 6
-    assert steps(agent.actor_opt) == steps(agent.critic_opt) == 2
-    assert agent.updates_done == 2

@@ -461,28 +461,3 @@ def test_imagined_actions_have_no_gradient_through_the_actor_input(make_agent, f
     for fused, reference in zip(fused_grads, plain_grads):
         assert reference.abs().sum() > 0
         assert torch.allclose(fused, reference, rtol=1e-4, atol=1e-6)
-
-
-def test_running_scope_sets_the_return_scale_without_the_imagined_crashes(make_agent):
-    """Scope "running": trajectories that reach a terminal state inside the horizon (a crash
-    worth -1000 here) do not set the percentiles, so the scale is that of the others; with too
-    few running trajectories every return counts, as under scope "all"."""
-    config = make_agent().config
-    horizon, n = 4, 40
-    returns = torch.linspace(0.0, 10.0, n).repeat(horizon, 1)
-    cont = torch.ones(horizon, n)
-    crashed = torch.arange(n) % 4 == 0  # a quarter of the trajectories: far above the 5th percentile
-    returns[:, crashed] = -1000.0
-    cont[2, crashed] = 0.0
-    running_start = torch.ones(n)
-
-    def scale(scope: str, cont: torch.Tensor) -> float:
-        behavior = Behavior(action_size=1, discrete=False, config=config.model_copy(update={"return_norm_scope": scope}))
-        low, high = behavior.return_norm.candidate(behavior.returns_for_scale(returns, cont, running_start))
-        return behavior.return_norm.scale(low, high).item()
-
-    assert scale("all", cont) > 900
-    assert scale("running", cont) < 10
-    all_crash = cont.clone()
-    all_crash[2] = 0.0
-    assert scale("running", all_crash) == pytest.approx(scale("all", cont))

@@ -94,54 +94,16 @@ def test_errors_for_inconsistent_steps_and_too_little_data():
         replay.add({"obs": np.zeros((2, 4)), "is_first": np.ones(2, bool)})
 
 
-def test_recent_windows_lie_in_the_newest_steps_and_a_zero_fraction_samples_as_before():
-    uniform, mixed, zero = (SequenceReplay(capacity=3 * 400, seed=4) for _ in range(3))
-    for replay in (uniform, mixed, zero):
-        _fill(replay, 300)
-    plain = uniform.sample(32, 10)
-    unchanged = zero.sample(32, 10, recent_fraction=0.0, recent_steps=60)
-    assert all(np.array_equal(plain[k], unchanged[k]) for k in plain)
-    batch = mixed.sample(32, 10, recent_fraction=0.5, recent_steps=3 * 40)  # newest 40 steps per stream
-    newest = 299
-    assert (batch["counter"][:16] >= newest - 39).all() and (batch["counter"][:16] <= newest).all()
-    assert (np.diff(batch["counter"], axis=1) == 1).all()
-    # the other half is uniform: over 16 windows of 300 steps some start well before the recent span
-    assert (batch["counter"][16:, 0] < newest - 39).any()
-    # a recent span shorter than a window still yields whole windows, the newest ones
-    short = mixed.sample(8, 10, recent_fraction=1.0, recent_steps=3)
-    assert (short["counter"][:, -1] == newest).all()
-
-
-def test_the_replay_keys_stay_out_of_run_records_at_their_defaults():
-    assert not {"replay_recent_fraction", "replay_recent_steps", "replay_terminal_fraction"} & set(record(DreamerConfig()))
-    assert record(DreamerConfig(replay_recent_fraction=0.5))["replay_recent_fraction"] == 0.5
-
-
-def test_terminal_windows_hold_a_terminal_step_anywhere_in_the_window():
-    def fill(replay):
-        rng = np.random.default_rng(1)
-        for t in range(500):  # wraps the 3 x 150 ring; terminals at every 37th step of stream 1 only
-            replay.add({"obs": rng.normal(size=(3, 2)).astype(np.float32), "counter": np.full(3, t),
-                        "env": np.arange(3), "is_terminal": (np.arange(3) == 1) & (t % 37 == 36)})
-
-    plain, zero, ending = (SequenceReplay(capacity=3 * 150, seed=2) for _ in range(3))
-    for replay in (plain, zero, ending):
-        fill(replay)
-    reference = plain.sample(40, 12)
-    assert all(np.array_equal(reference[k], v) for k, v in zero.sample(40, 12, terminal_fraction=0.0).items())
-    batch = ending.sample(40, 12, terminal_fraction=0.25)
-    assert batch["is_terminal"][:10].any(axis=1).all() and (batch["env"][:10] == 1).all()
-    assert (np.diff(batch["counter"], axis=1) == 1).all()  # still contiguous, never across the write position
-    assert batch["counter"].min() >= 500 - 150  # only steps still in the ring
-    places = np.argmax(batch["is_terminal"][:10], axis=1)
-    assert len(set(places.tolist())) > 3  # the terminal step is not always at the same place
-    # no terminal stored yet: uniform windows, no error
-    empty = SequenceReplay(capacity=100, seed=0)
-    for _ in range(20):
-        empty.add({"obs": np.zeros((1, 2), np.float32), "is_terminal": np.zeros(1, bool)})
-    assert empty.sample(4, 5, terminal_fraction=1.0)["obs"].shape == (4, 5, 2)
-
-
-def test_replay_fractions_are_validated():
-    with pytest.raises(ValueError, match="must not exceed 1"):
-        DreamerConfig(replay_recent_fraction=0.6, replay_terminal_fraction=0.5)
+def test_retired_replay_and_update_settings_load_at_their_former_defaults_only():
+    """Records written while these were settings (at their defaults: left out of records, or, for
+    the one-valued `discrete_actor_grad`, always written) validate as before and record the same;
+    any other value names the retired key."""
+    stored = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
+              "model_updates": 1, "return_norm_scope": "all", "discrete_actor_grad": "reinforce"}
+    config = DreamerConfig.model_validate(stored)
+    assert config == DreamerConfig()
+    assert record(config)["discrete_actor_grad"] == "reinforce"  # the ids of runs made with it hold
+    assert not (set(stored) - {"discrete_actor_grad"}) & set(record(config))
+    for key, value in (("model_updates", 4), ("replay_recent_fraction", 0.5), ("return_norm_scope", "running")):
+        with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
+            DreamerConfig.model_validate({key: value})

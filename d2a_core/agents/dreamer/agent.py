@@ -252,15 +252,13 @@ class DreamerAgent:
     # --- training
 
     def train_step(self) -> dict[str, float]:
-        """`model_updates` world-model updates (one replayed batch each) and one actor-critic
-        update from the last batch's states.
+        """One world-model update on a replayed batch and one actor-critic update from its states.
 
         Raises TrainingError before any optimiser step whose loss or gradient is not finite,
         so the parameters stay as they were."""
         c = self.config
         started = time.perf_counter()
-        for _ in range(c.model_updates):
-            batch, wm_out, model_norm = self.world_model_update()
+        batch, wm_out, model_norm = self.world_model_update()
         world_model_done = time.perf_counter()
 
         start = wm_out.observed.latent.detach().reshape(-1)
@@ -298,15 +296,12 @@ class DreamerAgent:
 
     def world_model_update(self) -> tuple[dict[str, Tensor], Any, Tensor]:
         """One world-model update on a freshly replayed batch: (batch, loss output, grad norm).
-        `train_step` runs `model_updates` of them; offline tools (docs/analysis/wm_offline.py)
-        train the world model alone with it."""
+        `train_step` runs one; offline tools (docs/analysis/wm_offline.py) train the world model
+        alone with it."""
         c = self.config
         batch = {
             key: torch.as_tensor(value, device=self.device)
-            for key, value in self.replay.sample(
-                c.batch_size, c.batch_length, c.replay_recent_fraction, c.replay_recent_steps,
-                c.replay_terminal_fraction,
-            ).items()
+            for key, value in self.replay.sample(c.batch_size, c.batch_length).items()
         }
         with self._autocast():
             wm_out = self.world_model.loss(batch, self.train_generator)

@@ -317,17 +317,6 @@ class Behavior(nn.Module):
             return critic_per_step, torch.cat(log_probs).view(horizon, n), torch.cat(entropies).view(horizon, n)
         return critic_per_step, None, imagined.extras["entropy"]
 
-    def returns_for_scale(self, returns: Tensor, cont: Tensor, start_continue: Tensor) -> Tensor:
-        """The returns whose percentiles set the normalisation scale: all of them, or (scope
-        "running") those of the trajectories that neither start on a terminal state nor reach
-        one within the horizon, while at least a tenth of the trajectories are such."""
-        if self.config.return_norm_scope == "all":
-            return returns
-        running = (start_continue > 0) & (cont > 0).all(0)
-        if int(running.sum()) * 10 < running.numel():
-            return returns
-        return returns[:, running]
-
     def losses(
         self,
         world_model: WorldModel,
@@ -351,7 +340,7 @@ class Behavior(nn.Module):
         weights = torch.cumprod(torch.cat((start_continue.unsqueeze(0), discounts[:-1].detach()), 0), 0)
         critic_per_step, log_prob, entropy = self._critic_and_policy_terms(imagined, critic_chunks, returns.detach())
 
-        low, high = self.return_norm.candidate(self.returns_for_scale(returns, cont, start_continue))
+        low, high = self.return_norm.candidate(returns)
         scale = self.return_norm.scale(low, high)
         advantage = (returns - values[:-1].detach()) / scale
         if self.actor.reinforce:

@@ -77,15 +77,6 @@ class DreamerConfig(Section):
     return_norm_low: float = Field(5.0, ge=0, lt=100, description="lower percentile of the return range")
     return_norm_high: float = Field(95.0, gt=0, le=100, description="upper percentile of the return range")
     return_norm_limit: float = Field(1.0, gt=0, description="returns are divided by max(limit, hi - lo)")
-    # Meant to keep an imagined crash (~50x an ordinary return) out of the scale. Measured on 2 pass
-    # seeds it did not lower it: bootstrap values carry the crash into running trajectories too
-    # (docs/experiments/crash-blind-world-model.md, "`dreamer.return_norm_scope=running`"). Kept,
-    # off, so the runs can be repeated.
-    return_norm_scope: Literal["all", "running"] = Field(
-        "all", description="imagined returns whose percentiles set the scale: all (DreamerV3), or only those "
-                           "of trajectories the continue head keeps running through the horizon"
-    )
-    discrete_actor_grad: Literal["reinforce"] = Field("reinforce", description="gradient for discrete actions")
     # DreamerV3's 2023 release trains continuous actors by backprop through the dynamics; its 2024
     # release uses REINFORCE for every action space. Backprop follows the local slope of the
     # imagined reward, which a cliff (leaving the road) does not have until the car is over it.
@@ -110,26 +101,6 @@ class DreamerConfig(Section):
     train_ratio: float = Field(512.0, gt=0, description="replayed steps per environment step")
     replay_capacity: int = Field(1_000_000, gt=0, description="environment steps kept (over all env streams)")
     prefill_steps: int = Field(1024, ge=0, description="environment steps collected before the first update")
-    # DreamerV3 samples replay uniformly. A learner whose own data drifts (an assistant whose
-    # partner sees its actions, an intent head read on the current assistant's episodes) may
-    # need the newest episodes weighted up; 0 keeps uniform sampling exactly.
-    replay_recent_fraction: float = Field(
-        0.0, ge=0, le=1, description="share of each batch's windows drawn from the newest replay_recent_steps"
-    )
-    replay_recent_steps: int = Field(
-        5000, gt=0, description="environment steps (over all env streams) that count as recent"
-    )
-    # Crashes and finishes are rare steps that carry the largest rewards and the only
-    # continue = 0 targets; uniform windows hold few of them (`wm/terminal_steps` in the curve).
-    replay_terminal_fraction: float = Field(
-        0.0, ge=0, le=1, description="share of each batch's windows that hold a stored terminal step"
-    )
-    # Under uniform replay a step collected late in a run is replayed far fewer times than an
-    # early one, and a driver's crashes come late: extra world-model updates, each on its own
-    # batch, train the model on them more often without more actor-critic updates.
-    model_updates: int = Field(
-        1, ge=1, description="world-model updates per update (the extra ones world model only, each on a fresh batch)"
-    )
 
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
@@ -137,9 +108,13 @@ class DreamerConfig(Section):
         "float32", description="matmul precision in training (bfloat16: autocast, weights and optimiser stay float32)"
     )
 
-    omit_at_default = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-                       "reward_relabel_head": None, "terminal_weight": 1.0, "model_updates": 1,
-                       "return_norm_scope": "all"}
+    omit_at_default = {"reward_relabel_head": None, "terminal_weight": 1.0}
+    # experiments that did not become defaults (docs/experiments/): replay weighted to the newest
+    # or to terminal windows, extra world-model updates, a return scale from running trajectories
+    retired = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
+               "model_updates": 1, "return_norm_scope": "all"}
+    # a setting with one possible value, always recorded: kept in records for the ids made with it
+    recorded_constants = {"discrete_actor_grad": "reinforce"}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:
@@ -150,8 +125,6 @@ class DreamerConfig(Section):
         names = [head.name for head in self.extra_heads]
         if len(names) != len(set(names)):
             raise ValueError(f"extra_heads names must be unique, got {names}")
-        if self.replay_recent_fraction + self.replay_terminal_fraction > 1:
-            raise ValueError("replay_recent_fraction + replay_terminal_fraction must not exceed 1")
         if self.bins % 2 == 0:
             raise ValueError("bins must be odd so that zero is a bin centre")
         return self

@@ -67,51 +67,22 @@ class SequenceReplay:
         """Whether a window of `length` steps exists."""
         return self.num_streams > 0 and self.filled >= length
 
-    def sample(
-        self, batch_size: int, length: int, recent_fraction: float = 0.0, recent_steps: int = 0,
-        terminal_fraction: float = 0.0,
-    ) -> dict[str, np.ndarray]:
-        """`batch_size` windows of `length` consecutive steps, uniformly over streams and starts,
-        except that the first round(batch_size * recent_fraction) windows lie within the newest
-        `recent_steps` steps (over all streams; at least one window's length per stream), and the
-        next round(batch_size * terminal_fraction) each hold a stored terminal step (`is_terminal`)
-        at a uniform place in the window (uniform windows while the replay holds none).
-        `is_first` is set at each window's first step: the model starts every window afresh."""
+    def sample(self, batch_size: int, length: int) -> dict[str, np.ndarray]:
+        """`batch_size` windows of `length` consecutive steps, uniformly over streams and starts
+        (DreamerV3's replay). `is_first` is set at each window's first step: the model starts
+        every window afresh."""
         if not self.can_sample(length):
             raise TrainingError(
                 f"replay holds {self.filled} steps per stream, fewer than the batch length {length}"
             )
         streams = self.rng.integers(0, self.num_streams, batch_size)
         starts = self.rng.integers(0, self.filled - length + 1, batch_size)
-        # the other selectors draw after the uniform ones, so fractions of 0 sample exactly as before
-        recent = int(round(batch_size * recent_fraction))
-        if recent:
-            per_stream = max(length, recent_steps // self.num_streams)
-            starts[:recent] = self.rng.integers(max(0, self.filled - per_stream), self.filled - length + 1, recent)
         oldest = self.position if self.filled == self.stream_capacity else 0
-        ending = min(int(round(batch_size * terminal_fraction)), batch_size - recent)
-        if ending and "is_terminal" in self.data:
-            self._place_terminals(streams, starts, slice(recent, recent + ending), length, oldest)
         index = (oldest + starts[:, None] + np.arange(length)[None]) % self.stream_capacity
         batch = {key: value[streams[:, None], index] for key, value in self.data.items()}
         if "is_first" in batch:
             batch["is_first"][:, 0] = True
         return batch
-
-    def _place_terminals(self, streams: np.ndarray, starts: np.ndarray, rows: slice, length: int, oldest: int) -> None:
-        """Move the windows of `rows` (in place) onto stored terminal steps drawn uniformly."""
-        stream_of, slot = np.nonzero(self.data["is_terminal"])
-        age = (slot - oldest) % self.stream_capacity  # position from the oldest stored step
-        stored = age < self.filled  # slots not yet written hold zeros, never True, but be exact
-        stream_of, age = stream_of[stored], age[stored]
-        if not len(age):
-            return
-        count = rows.stop - rows.start
-        pick = self.rng.integers(0, len(age), count)
-        place = self.rng.integers(0, length, count)  # where in its window the terminal step falls
-        streams[rows] = stream_of[pick]
-        # clipping at either end of the stream keeps the terminal step inside the window
-        starts[rows] = np.clip(age[pick] - place, 0, self.filled - length)
 
     # --- persistence
 
