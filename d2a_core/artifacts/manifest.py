@@ -32,13 +32,19 @@ def canonical_json(obj: Any) -> bytes:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
 
 
+def content_key(identity: Any) -> str:
+    """The sha256 of `identity`'s canonical JSON: the key of a run, an evaluation or a grid cell
+    (what it was made from), by which a finished one is found again."""
+    return hashlib.sha256(canonical_json(identity)).hexdigest()
+
+
 def identity_of(manifest: dict[str, Any]) -> dict[str, Any]:
     return {key: manifest[key] for key in IDENTITY_FIELDS}
 
 
 def artifact_id(manifest: dict[str, Any]) -> str:
     """The sha256 of the canonical identity part of a manifest."""
-    return hashlib.sha256(canonical_json(identity_of(manifest))).hexdigest()
+    return content_key(identity_of(manifest))
 
 
 @functools.lru_cache(maxsize=1)

@@ -25,7 +25,6 @@ from their artifacts; assistants trained in different envs are not compared.
 
 from __future__ import annotations
 
-import hashlib
 import io
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from d2a_core.artifacts import Store, canonical_json
+from d2a_core.artifacts import Store, content_key
 from d2a_core.errors import NotFoundError, UsageError
 from d2a_core.evaluation.criteria import CRITERION_KEY, criterion_value
 from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
@@ -285,7 +284,7 @@ class _Session:
         identity = {"format": EVAL_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,
                     "humans": self.human_ids, "episodes": self.episodes, "eval_seed": self.eval_seed,
                     "env": self.env_record}
-        return hashlib.sha256(canonical_json(identity)).hexdigest()
+        return content_key(identity)
 
     def evaluate(self, name: str, seed: int, art_id: str) -> dict[str, Any]:
         """One assistant's evaluation, stored (or the stored one, `cached`)."""

@@ -35,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import functools
-import hashlib
 import json
 import os
 import secrets
@@ -89,26 +88,26 @@ def cell_key(argv: list[str], config_fingerprint: str | None, expects: dict[str,
              inputs: dict[str, str]) -> str:
     """The cell's identity: argv (placeholders filled), resolved config, the aliases it expects,
     what its dependencies yielded (alias -> id) and the training-code version."""
-    from d2a_core.artifacts.manifest import canonical_json
+    from d2a_core.artifacts.manifest import content_key
     from d2a_core.training.code_version import TRAINING_CODE_VERSION
 
     identity = {"format": RECORD_FORMAT, "argv": argv, "config": config_fingerprint, "expects": expects,
                 "inputs": inputs, "code": TRAINING_CODE_VERSION}
-    return hashlib.sha256(canonical_json(identity)).hexdigest()
+    return content_key(identity)
 
 
 def config_fingerprint(preset: str, config_file: str | None, overrides: tuple[str, ...]) -> str:
     """The sha256 of the resolved config (so an edited preset or config file is a new key); a
     config that does not resolve gets its error instead, and the cell fails with it when it runs."""
     from d2a_core import config as config_mod
-    from d2a_core.artifacts.manifest import canonical_json
+    from d2a_core.artifacts.manifest import content_key
     from d2a_core.errors import D2AError
 
     try:
         resolved = config_mod.load(preset, Path(config_file) if config_file else None, list(overrides))
     except D2AError as exc:
         return f"invalid: {exc}"
-    return hashlib.sha256(canonical_json(resolved.record())).hexdigest()
+    return content_key(resolved.record())
 
 
 def read_done(store, key: str) -> dict[str, Any] | None:

@@ -23,14 +23,13 @@ an MCAP log.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from d2a_core.artifacts import Store, canonical_json
+from d2a_core.artifacts import Store, content_key
 from d2a_core.errors import UsageError
 from d2a_core.pipelines.evaluate import ENV_SECTIONS, find_assistants, run_specs, stored_row
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
@@ -196,7 +195,7 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
         for k, (name, seed, art_id) in enumerate(found):
             identity = {"format": SWAP_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,
                         "specs": [vars(s) for s in specs], "humans": human_ids, "env": env_record}
-            key = hashlib.sha256(canonical_json(identity)).hexdigest()
+            key = content_key(identity)
             done = [a for a in store.list("intent-swap") if a.labels.get("run_key") == key and store.is_whole(a.id)]
             if done:
                 results.append(dict(store.read_json(done[-1].id, "swap.json")["result"], id=done[-1].id, cached=True))

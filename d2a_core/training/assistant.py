@@ -24,7 +24,6 @@ code version.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import time
@@ -38,7 +37,7 @@ import torch
 from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.expert import ExpertFilter
-from d2a_core.artifacts import Store, canonical_json
+from d2a_core.artifacts import Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.section import record
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
@@ -131,7 +130,7 @@ def _run_key(bundle: TrackBundle, population_ids: Sequence[str], pair: str, meth
     identity = {"format": RUN_FORMAT, "kind": "assistant", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
                 "replays": bundle.replay_ids, "populations": list(population_ids), "pair": pair,
                 "method": method, "config": config, "seed": seed}
-    return hashlib.sha256(canonical_json(identity)).hexdigest()
+    return content_key(identity)
 
 
 class _Timer:

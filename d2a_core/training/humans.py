@@ -19,7 +19,6 @@ returned from the store instead of training again, marked `cached` with the code
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import shutil
@@ -36,7 +35,7 @@ from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
-from d2a_core.artifacts import Artifact, Store, canonical_json
+from d2a_core.artifacts import Artifact, Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.schema import Config
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
@@ -104,7 +103,7 @@ def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
 def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int) -> str:
     identity = {"format": RUN_FORMAT, "kind": "humans", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
                 "replays": bundle.replay_ids, "intent": intent, "config": config, "seed": seed}
-    return hashlib.sha256(canonical_json(identity)).hexdigest()
+    return content_key(identity)
 
 
 def _agent_bytes(agent: DreamerAgent) -> bytes:
