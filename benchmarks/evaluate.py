@@ -35,7 +35,7 @@ import torch  # noqa: E402
 from d2a_core.artifacts import Store
 from d2a_core.pipelines.evaluate import evaluate
 from d2a_core.sim.race_env import RaceEnv
-from d2a_core.training.humans import load_track_bundle
+from d2a_core.run_inputs import load_track_bundle
 
 
 def _bare_env_steps_per_s(store: Store, track: str, steps: int) -> float:

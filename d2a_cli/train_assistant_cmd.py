@@ -44,7 +44,8 @@ def train_assistant(
     run: RunContext,
 ) -> None:
     """Train assistants with the pair's frozen populations; store checkpoints evaluated on a paired panel."""
-    from d2a_core.training.assistant import parse_pair, train_assistant as train
+    from d2a_core.run_inputs import parse_pair
+    from d2a_core.training.assistant import train_assistant as train
     from d2a_core.training.methods import get_method
 
     parse_pair(pair)  # a bad pair or method is a usage error before anything loads

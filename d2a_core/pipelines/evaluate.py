@@ -40,7 +40,8 @@ from d2a_core.evaluation.safety import collision_flags
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
-from d2a_core.training.humans import load_human, load_track_bundle
+from d2a_core.run_inputs import load_populations, load_track_bundle, parse_pair
+from d2a_core.training.humans import load_human
 from d2a_core.training.methods import get_method
 from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCollector
 
@@ -239,7 +240,6 @@ class _Session:
                  humans_refs: Sequence[str] | None, episodes: int, eval_seed: int, n_envs: int, device: str,
                  log_root: Path) -> None:
         from d2a_core.config.schema import Config
-        from d2a_core.training.assistant import load_populations
 
         self.store, self.pair, self.intents = store, pair, intents
         self.env_record, self.episodes, self.eval_seed, self.n_envs, self.device = (
@@ -359,7 +359,6 @@ def _latents_npz(rows: Sequence[dict]) -> bytes | None:
 
 def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_seed, n_envs, device, progress,
               assistant_refs=None):
-    from d2a_core.training.assistant import parse_pair
 
     intents = parse_pair(pair)
     if len(set(names)) != len(names):

@@ -56,6 +56,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence, Union
 
 from d2a_core.errors import UsageError
+from d2a_core.run_inputs import parse_pair
 
 KINDS = ("make-track", "train-humans", "train-assistant", "eval", "intent-swap", "report")
 CONFIG_KINDS = ("make-track", "train-humans", "train-assistant")
@@ -160,18 +161,6 @@ def _split_override(text: str) -> tuple[str | None, str]:
     return None, text
 
 
-def _pair_intents(pair: str) -> tuple[str, str]:
-    """The two intents of a pair, checked as `training.assistant.parse_pair` checks them (that
-    module imports torch; the grid is expanded in the driver, which never needs it)."""
-    from d2a_core.objectives.rewards import INTENTS
-
-    parts = tuple(pair.split("-"))
-    if len(parts) != 2 or parts[0] == parts[1] or not all(p in INTENTS for p in parts):
-        raise UsageError(f"pair {pair!r}: write two distinct intents as 'a-b' (the paper's: pass-stay, "
-                         f"left-right; intents: {', '.join(INTENTS)})")
-    return parts  # type: ignore[return-value]
-
-
 def _applies(scope: str | None, cell_name: str, kind: str) -> bool:
     return scope is None or scope == kind or fnmatch.fnmatchcase(cell_name, scope)
 
@@ -192,7 +181,7 @@ def expand(opts: GridOptions) -> list[Cell]:
     pairs = _unique(opts.pairs)
     if not tracks or not pairs:
         raise UsageError("a grid needs at least one --track and one --pair")
-    intents_of = {pair: _pair_intents(pair) for pair in pairs}
+    intents_of = {pair: parse_pair(pair) for pair in pairs}
     methods = _unique(opts.methods) if opts.methods else method_names(implemented_only=True)
     for name in methods:
         get_method(name)  # unknown or not implemented: a usage error before anything runs

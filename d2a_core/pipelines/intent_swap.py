@@ -34,7 +34,8 @@ from d2a_core.errors import UsageError
 from d2a_core.pipelines.evaluate import ENV_SECTIONS, find_assistants, run_specs, stored_row
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
-from d2a_core.training.humans import load_human, load_track_bundle
+from d2a_core.run_inputs import load_populations, load_track_bundle, parse_pair
+from d2a_core.training.humans import load_human
 from d2a_core.training.shared_rollout import EpisodeSpec
 
 SWAP_FORMAT = 1
@@ -162,7 +163,7 @@ def intent_swap(store: Store, track_ref: str, pair: str, method: str = "dream2as
 def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, window_s, eval_seed, n_envs, device,
                  progress):
     from d2a_core.config.schema import Config
-    from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
+    from d2a_core.training.assistant import load_assistant
 
     intents = parse_pair(pair)
     track = load_track_bundle(store, track_ref, EnvConfig().dt).track.name

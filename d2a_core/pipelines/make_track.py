@@ -17,7 +17,6 @@ recorded in the replays' own config.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,33 +182,3 @@ def make_track(
         "opponents": [r.as_dict() for r in results],
     }
 
-
-def opponents_of(store: Store, track_ref: str) -> list[str]:
-    """Ids of the newest complete set of replays recorded on a track, in index order.
-
-    A set is the replays of one make-track run (same config and seed); it is complete when it
-    holds every index below the `opponents.count` of that config. An interrupted run leaves an
-    incomplete set, which is never used.
-    """
-    track_id = store.resolve(track_ref)
-    sets: dict[str, dict[int, Any]] = {}
-    for art in store.list("replay"):
-        if art.inputs == [track_id]:
-            key = json.dumps([art.config, art.seed], sort_keys=True)
-            sets.setdefault(key, {})[art.labels.get("index")] = art
-    complete, partial = [], []
-    for members in sets.values():
-        first = next(iter(members.values()))
-        count = (first.config or {}).get("opponents", {}).get("count") if isinstance(first.config, dict) else None
-        if isinstance(count, int) and count > 0 and set(members) == set(range(count)):
-            complete.append(members)
-        else:
-            partial.append((len(members), count))
-    if not complete:
-        if partial:
-            found, expected = max(partial, key=lambda p: p[0])
-            raise UsageError(f"track {track_ref} has no complete set of opponent replays in store {store.root} "
-                             f"(found {found} of {expected}: make-track was interrupted); run d2a make-track again")
-        raise UsageError(f"track {track_ref} has no opponent replays in store {store.root}; run d2a make-track")
-    newest = max(complete, key=lambda m: max((a.created, a.id) for a in m.values()))
-    return [newest[i].id for i in sorted(newest)]

@@ -43,11 +43,11 @@ from d2a_core.config.section import record
 from d2a_core.errors import NotFoundError, TrainingError, UsageError
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
-from d2a_core.objectives.rewards import INTENTS
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
-from d2a_core.training.humans import TrackBundle, load_human, load_track_bundle
+from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
+from d2a_core.training.humans import load_human
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
 from d2a_core.training.run_state import RunDir, cached_result, result_record
@@ -55,74 +55,7 @@ from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, Human
 from d2a_core.training.torch_files import load_torch
 
 RUN_FORMAT = 1
-PAIRS = ("pass-stay", "left-right")
-"""The paper's pairs; any two distinct intents written `a-b` are accepted."""
-
 ProgressFn = Callable[[dict[str, Any]], None]
-
-
-def parse_pair(pair: str) -> tuple[str, str]:
-    """`pass-stay` -> ("pass", "stay"); a UsageError names the valid forms."""
-    parts = tuple(pair.split("-"))
-    if len(parts) != 2 or parts[0] == parts[1] or not all(p in INTENTS for p in parts):
-        raise UsageError(f"pair {pair!r}: write two distinct intents as 'a-b' (the paper's: {', '.join(PAIRS)}; "
-                         f"intents: {', '.join(INTENTS)})")
-    return parts  # type: ignore[return-value]
-
-
-def load_populations(store: Store, bundle: TrackBundle, intents: Sequence[str],
-                     refs: Sequence[str] | None) -> list[tuple[str, dict[str, Any]]]:
-    """(id, population.json) per intent of the pair, from `refs` or the default aliases."""
-    if refs is not None and len(refs) != len(intents):
-        raise UsageError(f"--humans takes one population per intent of the pair ({len(intents)}), got {len(refs)}")
-    out = []
-    for k, intent in enumerate(intents):
-        ref = refs[k] if refs is not None else f"humans/{bundle.track.name}/{intent}"
-        if "," in ref:
-            raise UsageError(f"--humans {ref}: one population per intent here (only train-assistant trains with several)")
-        out.append(_load_population(store, bundle, intent, ref))
-    return out
-
-
-def load_population_groups(store: Store, bundle: TrackBundle, intents: Sequence[str],
-                           refs: Sequence[str] | None) -> list[list[tuple[str, dict[str, Any]]]]:
-    """The populations of each intent of the pair: `refs[k]` is one ref or a comma-separated list
-    (fictitious co-play over several training seeds, for partners more diverse than one run's
-    checkpoints). The first of each list is the intent's reference population: its expert
-    filters the reward and its humans form the evaluation panel; the others add drivers."""
-    if refs is not None and len(refs) != len(intents):
-        raise UsageError(f"--humans takes one population per intent of the pair ({len(intents)}), got {len(refs)} "
-                         "(several populations of one intent go in one entry: --humans A,B)")
-    groups = []
-    for k, intent in enumerate(intents):
-        names = [r.strip() for r in refs[k].split(",")] if refs is not None else [f"humans/{bundle.track.name}/{intent}"]
-        if not all(names):
-            raise UsageError(f"--humans {refs[k]!r}: an empty population ref in the list")  # type: ignore[index]
-        group = [_load_population(store, bundle, intent, name) for name in names]
-        ids = [pid for pid, _ in group]
-        if len(set(ids)) < len(ids):
-            raise UsageError(f"--humans {refs[k]!r} lists one {intent} population twice")  # type: ignore[index]
-        groups.append(group)
-    return groups
-
-
-def _load_population(store: Store, bundle: TrackBundle, intent: str, ref: str) -> tuple[str, dict[str, Any]]:
-    try:
-        art = store.get(ref)
-    except NotFoundError:
-        raise NotFoundError(
-            f"no population {ref!r} in store {store.root}; make it with: "
-            f"d2a train-humans --intent {intent} --track {bundle.track.name}") from None
-    if art.kind != "population":
-        raise UsageError(f"{ref} is a {art.kind} artifact, not a population")
-    pop = store.read_json(art.id, "population.json")
-    if pop["intent"] != intent:
-        raise UsageError(f"population {ref} is of intent {pop['intent']!r}, not {intent!r} "
-                         f"(--humans lists the pair's populations in order)")
-    if pop["track_id"] != bundle.track_id:
-        raise UsageError(f"population {ref} was trained on track {pop['track_id'][:12]}, not "
-                         f"{bundle.track.name} ({bundle.track_id[:12]})")
-    return art.id, pop
 
 
 def _run_key(bundle: TrackBundle, population_ids: Sequence[str], pair: str, method: str,

@@ -25,7 +25,6 @@ import shutil
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -43,11 +42,9 @@ from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_
                                           performance_fractions)
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.objectives.rewards import INTENTS
-from d2a_core.pipelines.make_track import opponents_of
 from d2a_core.sim.env_config import EnvConfig
 from d2a_core.sim.race_env import RaceEnv, observation_names
-from d2a_core.sim.replay import OpponentReplay
-from d2a_core.tracks.track import Track
+from d2a_core.run_inputs import TrackBundle, load_track_bundle
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
@@ -62,42 +59,6 @@ RUN_FORMAT = 1
 
 
 ProgressFn = Callable[[dict[str, Any]], None]
-
-
-@dataclass
-class TrackBundle:
-    """A track and its opponent replays, loaded from the store."""
-
-    track_id: str
-    track: Track
-    replay_ids: list[str]
-    replays: list[OpponentReplay]
-
-    def env(self, cfg: Any, intent: str | None = None) -> RaceEnv:
-        """A race env on this track with its replays and `cfg`'s env, reward, vehicle and world
-        sections (`cfg`: a `Config`, or anything with those attributes)."""
-        return RaceEnv(self.track, self.replays, intent=intent, env_config=cfg.env, reward_config=cfg.reward,
-                       vehicle_config=cfg.vehicle, world_config=cfg.world)
-
-
-def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
-    """A track by id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
-    try:
-        track_id = store.resolve(ref)
-    except NotFoundError:
-        if "/" in ref:
-            raise
-        try:
-            track_id = store.resolve(f"track/{ref}")
-        except NotFoundError:
-            raise NotFoundError(f"no track {ref!r} in store {store.root}; build it with: d2a make-track {ref}") from None
-    art = store.get(track_id)
-    if art.kind != "track":
-        raise UsageError(f"{ref} is a {art.kind} artifact, not a track")
-    track = Track.load(store.path(track_id, "track.npz"))
-    replay_ids = opponents_of(store, track_id)
-    replays = [OpponentReplay.from_log(store.path(rid, "replay.mcap"), "opponent", dt=dt) for rid in replay_ids]
-    return TrackBundle(track_id, track, replay_ids, replays)
 
 
 def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int) -> str:

@@ -38,8 +38,9 @@ from d2a_core.config.schema import Config
 from d2a_core.evaluation.paired import select_humans
 from d2a_core.pipelines.evaluate import ENV_SECTIONS, panel_specs, run_specs
 from d2a_core.sim.race_env import RaceEnv
-from d2a_core.training.assistant import load_assistant, load_populations, parse_pair
-from d2a_core.training.humans import load_human, load_track_bundle
+from d2a_core.run_inputs import load_populations, load_track_bundle, parse_pair
+from d2a_core.training.assistant import load_assistant
+from d2a_core.training.humans import load_human
 from intent_from_human_actions import previous_actions  # the sibling script (this folder is on sys.path)
 
 

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from d2a_core.artifacts import Store
-from d2a_core.pipelines.make_track import opponents_of
+from d2a_core.run_inputs import opponents_of
 
 REPO = Path(__file__).resolve().parents[2]
 SEED = int(os.environ.get("D2A_FAULT_SEED", "18"))
