@@ -118,6 +118,10 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
             assert (block["intent_f1"] is None) == (e["method"] == "dreamer")
         groups = {(h["intent"], h["group"]) for h in e["humans"]}
         assert ("pass", "imperfect") in groups and ("stay", "near_perfect") in groups
+        # the safety rule: exactly the groups whose collision rate rose by more than 0.05 are flagged
+        rose = {(i, g) for i, b in e["intents"].items() for g in ("imperfect", "near_perfect")
+                if g in b and b[g]["collision"]["mean"] > 0.05 + 1e-9}
+        assert {(f["intent"], f["group"]) for f in e["collision_flags"]} == rose
         episodes = store.read_json(e["id"], "eval.json")["unassisted"]
         for i, h in enumerate(e["humans"]):
             assert set(h) >= {"id", "intent", "group", "unassisted", "assisted", "delta"}
