@@ -11,7 +11,7 @@ import pytest
 from d2a_core.artifacts import Store
 from d2a_core.evaluation.paired import select_humans
 from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
-from d2a_core.sim.episode_log_reader import read_episode
+from d2a_core.sim.episode_log.reader import read_episode
 
 from d2a_test_helpers import copy_store
 

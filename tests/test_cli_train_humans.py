@@ -185,7 +185,7 @@ def test_evaluation_episode_logs_show_each_checkpoint_without_changing_it(cli, t
     """`humans.eval_logs=2`: each checkpoint keeps its first two evaluation episodes as MCAP logs
     (`episodes/*.mcap`, exported by `d2a artifacts export`, their outcome in the metadata); the
     evaluations and expert are those of the same run without logs."""
-    from d2a_core.sim.episode_log_reader import read_episode
+    from d2a_core.sim.episode_log.reader import read_episode
 
     args = ["train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE,
             "--set", "humans.env_steps=360", "--set", "humans.checkpoints=3", "--json"]

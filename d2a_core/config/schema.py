@@ -11,7 +11,7 @@ from pydantic import Field, model_validator
 from d2a_core.config.section import Section
 from d2a_core.objectives.rewards import RewardConfig
 from d2a_core.sim.driver import DriverConfig
-from d2a_core.sim.episode_log_config import EpisodeLogConfig
+from d2a_core.sim.episode_log.config import EpisodeLogConfig
 from d2a_core.sim.env_config import EnvConfig
 from d2a_core.sim.vehicle import VehicleConfig
 from d2a_core.sim.world_config import WorldConfig

@@ -286,7 +286,7 @@ def _intent_spans(ax, times: np.ndarray, inferred: np.ndarray) -> None:
 
 
 def time_traces(data: Collected) -> list[Plot]:
-    from d2a_core.sim.episode_log_reader import read_episode  # reads MCAP files only
+    from d2a_core.sim.episode_log.reader import read_episode  # reads MCAP files only
 
     plots = []
     for track, pair in data.pairs():

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from d2a_core.artifacts import Store
-from d2a_core.sim.episode_log_reader import read_episode
+from d2a_core.sim.episode_log.reader import read_episode
 from eval_humans import humans_of, parse_args  # beside this script, on sys.path when it runs
 
 CLOSING_M = (-12.0, 2.0)  # ds window: a car length or so behind, up to alongside

@@ -44,9 +44,9 @@ from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from d2a_core.errors import UsageError
-from d2a_core.sim.episode_log_config import EpisodeLogConfig
-from d2a_core.sim.episode_log_json import encode_message, json_schema_for, to_plain_json
-from d2a_core.sim.episode_log_reader import (
+from d2a_core.sim.episode_log.config import EpisodeLogConfig
+from d2a_core.sim.episode_log.json_fields import encode_message, json_schema_for, to_plain_json
+from d2a_core.sim.episode_log.reader import (
     EPISODE_METADATA_NAME,
     LOG_METADATA_NAME,
     REPLAY_FIELDS,
@@ -56,7 +56,7 @@ from d2a_core.sim.episode_log_reader import (
     read_episode,
     read_replay,
 )
-from d2a_core.sim.episode_log_scene import CarDrawer, CarPose, StaticScene, static_scene_update
+from d2a_core.sim.episode_log.scene import CarDrawer, CarPose, StaticScene, static_scene_update
 
 __all__ = [
     "CarPose",

@@ -13,7 +13,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from d2a_core.errors import UsageError
-from d2a_core.sim.episode_log_json import columns
+from d2a_core.sim.episode_log.json_fields import columns
 
 STATE_TOPIC_PREFIX = "/state/"
 EPISODE_METADATA_NAME = "episode"

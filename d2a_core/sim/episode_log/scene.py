@@ -27,7 +27,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from d2a_core.sim.episode_log_config import Colour, EpisodeLogConfig
+from d2a_core.sim.episode_log.config import Colour, EpisodeLogConfig
 from d2a_core.sim.rotation import euler_to_quaternion
 
 WORLD_FRAME = "world"
