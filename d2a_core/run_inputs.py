@@ -53,9 +53,9 @@ def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
     if art.kind != "track":
         raise UsageError(f"{ref} is a {art.kind} artifact, not a track")
     from d2a_core.sim.replay import OpponentReplay
-    from d2a_core.tracks.track import Track
+    from d2a_core.tracks.track_file import load_track
 
-    track = Track.load(store.path(track_id, "track.npz"))
+    track = load_track(store.path(track_id, "track.npz"))
     replay_ids = opponents_of(store, track_id)
     replays = [OpponentReplay.from_log(store.path(rid, "replay.mcap"), "opponent", dt=dt) for rid in replay_ids]
     return TrackBundle(track_id, track, replay_ids, replays)

@@ -8,7 +8,7 @@ import numpy as np
 
 from d2a_core.artifacts import Store
 from d2a_core.sim.replay import OpponentReplay
-from d2a_core.tracks import Track
+from d2a_core.tracks import Track, load_track
 
 OVAL_CSV = Path(__file__).parent / "tracks" / "fixtures" / "oval_chicane.csv"
 
@@ -30,7 +30,7 @@ def test_make_track_straightaway_smoke(cli, store_dir):
     assert len(out["opponents"]) == 2  # the smoke preset's count
     store = Store(store_dir)
     assert store.resolve("track/straightaway") == out["id"]
-    track = Track.load(store.path(out["id"], "track.npz"))
+    track = load_track(store.path(out["id"], "track.npz"))
     assert track.finish_s == 370.0 and track.barriers and track.barriers[0].side == "right"
     _check_replays_stay_on_track(store, out, track)
     paces = [o["pace"] for o in out["opponents"]]
@@ -54,7 +54,7 @@ def test_make_track_hairpin_has_hills_and_opponents_finish(cli, store_dir):
     out = res.json
     assert out["length_m"] == 960.0 and out["elevation_range_m"] >= 10.0
     store = Store(store_dir)
-    _check_replays_stay_on_track(store, out, Track.load(store.path(out["id"], "track.npz")))
+    _check_replays_stay_on_track(store, out, load_track(store.path(out["id"], "track.npz")))
 
 
 def test_make_track_from_csv_section(cli, store_dir):
@@ -64,7 +64,7 @@ def test_make_track_from_csv_section(cli, store_dir):
     out = res.json
     assert out["name"] == "oval-cut"
     store = Store(store_dir)
-    track = Track.load(store.path("track/oval-cut", "track.npz"))
+    track = load_track(store.path("track/oval-cut", "track.npz"))
     assert abs(track.length - 500.0) < 1.0
     assert "source.csv" in store.get("track/oval-cut").files
 
@@ -90,7 +90,7 @@ def test_a_flat_out_driver_can_pass_every_default_straightaway_replay(cli, store
 
     out = cli("make-track", "straightaway", "--preset", "smoke", "--json", store=store_dir).json
     store = Store(store_dir)
-    track = Track.load(store.path(out["id"], "track.npz"))
+    track = load_track(store.path(out["id"], "track.npz"))
     grid, env = track.start_grid, EnvConfig()
     assert grid.opponent.s > grid.ego.s  # the ego starts behind
     x, y, _ = track.from_frenet(grid.ego.s, grid.ego.e)

@@ -33,6 +33,7 @@ from d2a_core.sim.opponents import Lap, drive_lap, line_profile
 from d2a_core.sim.recording import scene_of
 from d2a_core.tracks.sources import TrackSource, load_track_source
 from d2a_core.tracks.track import Track
+from d2a_core.tracks.track_file import save_track
 
 ProgressFn = Callable[[str, int, int], None]
 LINE_ATTEMPTS = 5
@@ -120,7 +121,7 @@ def make_track(
     with store.lease(), store.scratch_dir("make-track") as tmp:
         tmp = Path(tmp)
         npz = tmp / "track.npz"
-        track.save(npz)
+        save_track(track, npz)
         labels = {"name": track.name, "length_m": round(track.length, 3), "finish_s": track.finish_s,
                   "elevation_range_m": round(track.elevation_range, 3), "source": src.description}
         track_art = store.put("track", {"track.npz": npz, f"source{src.suffix}": src.raw},

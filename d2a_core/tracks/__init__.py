@@ -6,7 +6,7 @@ Typical use:
     track = build_track("hairpin")     # a shipped name, a .yaml spec, a .csv (start_m/length_m) or a .npz
     s, e = track.to_frenet(x, y, s_hint=previous_s)
     x, y, z = track.from_frenet(s, e)
-    track.save("hairpin.npz")
+    save_track(track, "hairpin.npz")   # load_track("hairpin.npz") reads it back
 """
 
 from d2a_core.tracks.centreline_csv import RawCentreline, read_centreline_csv

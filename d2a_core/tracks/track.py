@@ -301,19 +301,6 @@ class Track:
             "source": self.source,
         }
 
-    def save(self, path: Any) -> None:
-        """Write the track to one `.npz` file (see `track_file.py` for the layout)."""
-        from d2a_core.tracks.track_file import save_track
-
-        save_track(self, path)
-
-    @classmethod
-    def load(cls, path: Any, frenet_config: FrenetSearchConfig | None = None) -> Track:
-        """Read a track written by `save`; raises SpecError for a file that is not one."""
-        from d2a_core.tracks.track_file import load_track
-
-        return load_track(path, frenet_config)
-
     def __repr__(self) -> str:
         return (
             f"Track({self.name!r}, length={self.length:.1f} m, finish_s={self.finish_s:.1f}, "

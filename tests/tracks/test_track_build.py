@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from d2a_core.errors import NotFoundError, SpecError, UsageError
-from d2a_core.tracks import TracksConfig, build_track, load_track_source
+from d2a_core.tracks import TracksConfig, build_track, load_track_source, save_track
 from d2a_core.tracks.interpolation import KnotProfile
 
 
@@ -17,7 +17,7 @@ def test_builds_each_source_kind(tracks_dir: Path, oval_csv: Path, tmp_path: Pat
     assert spec_track.source["kind"] == "spec" and spec_track.source["file"] == "straightaway.yaml"
     csv_track = build_track(oval_csv, start_m=10.0, length_m=300.0)
     assert csv_track.source["kind"] == "csv" and csv_track.length == pytest.approx(300.0)
-    spec_track.save(tmp_path / "s.npz")
+    save_track(spec_track, tmp_path / "s.npz")
     assert build_track(tmp_path / "s.npz").finish_s == spec_track.finish_s
 
 
