@@ -76,7 +76,7 @@ def _as_samples(name: str, value: Any, n: int | None) -> np.ndarray:
 
 
 class Track:
-    """A compiled track. Build it with `compile_spec`, `load_centreline_csv` or `Track.load`.
+    """A compiled track. Build it with `compile_spec`, `load_centreline_csv` or `track_file.load_track`.
 
     Args:
         name: track name.
