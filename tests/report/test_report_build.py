@@ -121,6 +121,8 @@ def test_lineage_is_exactly_the_artifacts_used(built):
     assert all(i in md for i in expected)  # the artifact list at the end
     assert ids["evaluations"][("dreamer", 0)][:12] in md and "n/a (1 seed)" in md and "not run" in md
     assert "Intent met" in md and "not recorded" in md  # dreamer's evaluation has no intent criterion
+    # the safety rule, broken by dream2assist's near-perfect rows only: marked and said once per table
+    assert md.count("Safety rule broken") == 2 and "⚠ unsafe" in md  # pass and stay, near-perfect
 
 
 def test_all_five_figure_kinds_and_the_files(built):
