@@ -232,7 +232,7 @@ def evaluate(store: Store, track_ref: str, pair: str, method: str | None = None,
     return result
 
 
-class _Session:
+class _EvalRun:
     """What every assistant of one `d2a eval` call shares: the env, the humans under test, their
     loaded agents and (once run) their unassisted episodes."""
 
@@ -373,10 +373,10 @@ def _evaluate(store, track_ref, pair, names, seeds, humans_refs, episodes, eval_
                              f"{found[0][1]}; evaluate them separately")
     results = []
     with store.scratch_dir("eval") as tmp:
-        session = _Session(store, track_ref, pair, intents, env_record, humans_refs, episodes, eval_seed, n_envs,
-                           device, Path(tmp))
+        run = _EvalRun(store, track_ref, pair, intents, env_record, humans_refs, episodes, eval_seed, n_envs,
+                       device, Path(tmp))
         for k, (name, seed, art_id) in enumerate(found):
             if progress:
                 progress({"stage": f"{name} seed {seed}", "done": k, "total": len(found)})
-            results.append(session.evaluate(name, seed, art_id))
+            results.append(run.evaluate(name, seed, art_id))
     return {"evaluations": results}
