@@ -210,21 +210,6 @@ def test_evaluation_episode_logs_show_each_checkpoint_without_changing_it(cli, t
             assert any(outcome["progress_m"] == pytest.approx(e["progress_m"]) for e in episodes)
 
 
-def test_training_starts_spread_along_the_race_are_their_own_run(cli, track_store):
-    """`humans.train_start_spread`: a run of its own (recorded, another population), which trains
-    and evaluates; the env's start options are tested in tests/sim/test_race_env.py."""
-    args = ["train-humans", "--intent", "pass", "--track", "straightaway", *SMOKE,
-            "--set", "humans.env_steps=240", "--set", "humans.checkpoints=2", "--json"]
-    plain = cli(*args, store=track_store)
-    spread = cli(*args, "--set", "humans.train_start_spread=0.8", store=track_store)
-    assert plain.code == 0 and spread.code == 0, plain.stderr + spread.stderr
-    a, b = plain.json["populations"][0], spread.json["populations"][0]
-    assert a["id"] != b["id"]
-    store = Store(track_store)
-    assert store.get(b["checkpoints"][0]["id"]).config["humans"]["train_start_spread"] == 0.8
-    assert "train_start_spread" not in store.get(a["checkpoints"][0]["id"]).config["humans"]
-
-
 def test_non_finite_loss_stops_with_a_clear_error(cli, track_store):
     res = cli("train-humans", "--intent", "right", "--track", "straightaway", *SMOKE,
               "--set", "dreamer.model_lr=1e30", "--set", "dreamer.actor_lr=1e30", "--json", store=track_store)

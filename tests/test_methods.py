@@ -111,19 +111,14 @@ def test_intent_reads_reaches_the_head_only_when_set_and_only_for_a_dreamer_inte
     assert (options["reads"], options["tail"]) == ("observation_tail", 32)
 
 
-def test_intent_lr_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_head():
-    from d2a_core.config.section import record
-
-    base = Config()
-    plain = get_method("dream2assist").configure(base, PAIR)
-    assert plain.dreamer.extra_heads[0].lr is None
-    # unset, neither the assistant section nor the head names it: earlier runs keep their keys
-    assert "intent_lr" not in record(plain.assistant) and "lr" not in record(plain.dreamer)["extra_heads"][0]
-    fast = base.model_copy(update={"assistant": base.assistant.model_copy(update={"intent_lr": 1e-3})})
-    assert get_method("dream2assist+a-r").configure(fast, PAIR).dreamer.extra_heads[0].lr == 1e-3
-    for name in ("dreamer", "no-rssm"):
-        with pytest.raises(UsageError, match="intent_lr"):
-            get_method(name).configure(fast, PAIR)
+def test_retired_assistant_and_population_settings_load_at_their_former_defaults_only():
+    """Stored records may carry `assistant.intent_lr: null` and `humans.train_start_spread: 0.0`
+    (settings retired after their experiments); any other value names the key."""
+    config = Config.model_validate({"assistant": {"intent_lr": None}, "humans": {"train_start_spread": 0.0}})
+    assert config == Config()
+    for section, key, value in (("assistant", "intent_lr", 1e-3), ("humans", "train_start_spread", 0.7)):
+        with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
+            Config.model_validate({section: {key: value}})
 
 
 def _assistant(base, **update):

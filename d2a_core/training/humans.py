@@ -175,8 +175,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
             raise TrainingError(f"cannot resume {intent} from {run.state_path}: {exc}; {run.restart_hint}") from None
         resumed_from = env_steps
     # resets after a resume use fresh seeds so the continued run does not replay old episodes
-    spread = {"start_spread": hc.train_start_spread} if hc.train_start_spread else None
-    collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps, reset_options=spread)
+    collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
     schedule = [round(hc.env_steps * (k + 1) / hc.checkpoints) for k in range(hc.checkpoints)]
     pending = [s for s in schedule if s > env_steps]
     snapshots = _Snapshots(run_dir / "snapshots", hc.snapshot_every, after=env_steps)

@@ -106,7 +106,7 @@ class Method:
         (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`,
         `assistant.precision`) in its `dreamer`
         section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
-        `assistant.intent_reads`, learning rate `assistant.intent_lr`) appended to
+        `assistant.intent_reads`) appended to
         `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
         is on and the reward has expert terms."""
         _require_implemented(self)
@@ -114,11 +114,9 @@ class Method:
             raise UsageError(f"method {self.name!r}: a pair needs at least two distinct intents, got {list(intents)}")
         assistant = config.assistant
         dreamer_head = self.intent_head and self.entry_point == DREAMER_AGENT
-        for key in ("intent_reads", "intent_lr"):  # settings of a Dreamer intent head, neutral by default
-            value = getattr(assistant, key)
-            if value != assistant.omit_at_default[key] and not dreamer_head:
-                raise UsageError(f"assistant.{key}={value!r} configures a Dreamer intent head; "
-                                 f"method {self.name!r} has none")
+        if assistant.intent_reads != assistant.omit_at_default["intent_reads"] and not dreamer_head:
+            raise UsageError(f"assistant.intent_reads={assistant.intent_reads!r} configures a Dreamer intent head; "
+                             f"method {self.name!r} has none")
         if config.dreamer.reward_relabel_head is not None:
             raise UsageError(f"dreamer.reward_relabel_head={config.dreamer.reward_relabel_head!r}: the method "
                              "sets it; use assistant.reward_relabel=true")
@@ -142,8 +140,7 @@ class Method:
                 options.update(reads="observation_tail", tail=PARTNER_SLOT * assistant.partner_window)
             elif assistant.intent_reads != "latent":  # named only when set, so older runs keep their keys
                 options["reads"] = assistant.intent_reads
-            head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options,
-                              lr=assistant.intent_lr)
+            head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options)
             learner["extra_heads"] = [*heads, head]
         if learner:
             update["dreamer"] = config.dreamer.model_copy(update=learner)

@@ -179,36 +179,6 @@ def test_a_head_reading_the_partner_window_sees_only_the_observations_last_colum
     assert plain_state.observation is None
 
 
-def test_the_intent_heads_own_learning_rate_moves_its_weights_and_only_them_faster():
-    """`assistant.intent_lr`: the head's weights get their own optimiser group at that rate; every
-    other world-model weight stays at model_lr, each weight in exactly one group."""
-    torch.manual_seed(0)
-    slow = _smoke_agent(model_lr=1e-5)
-    fast = _smoke_agent(assistant=("assistant.intent_lr=1e-3",), model_lr=1e-5)
-    assert len(slow.model_opt.param_groups) == 1
-    groups = fast.model_opt.param_groups
-    head = list(fast.world_model.extra_heads["intent"].parameters())
-    assert [g["lr"] for g in groups] == [1e-5, 1e-3]
-    assert {id(p) for p in groups[1]["params"]} == {id(p) for p in head}
-    assert sorted(id(p) for g in groups for p in g["params"]) == sorted(id(p) for p in fast.world_model.parameters())
-
-    episodes, rng = _LabelledEpisodes(seed=5), np.random.default_rng(6)
-    for _ in range(3 * EPISODE):
-        step = {**episodes.step(), "action": rng.uniform(-1, 1, (ENVS, 2)).astype(np.float32),
-                "intent": episodes.intent.copy()}
-        slow.observe(step)
-        fast.observe(step)
-
-    def moved(agent: DreamerAgent, module: torch.nn.Module) -> float:
-        before = [p.detach().clone() for p in module.parameters()]
-        agent.train_step()
-        return float(torch.cat([(p.detach() - b).abs().flatten() for p, b in zip(module.parameters(), before)]).median())
-
-    # Adam moves each weight by about its rate per step, whatever the loss's scale
-    assert moved(fast, fast.world_model.extra_heads["intent"]) > 20 * moved(slow, slow.world_model.extra_heads["intent"])
-    assert moved(fast, fast.world_model.encoder) < 3e-5
-
-
 def _stale_reward_agent(relabel: bool) -> tuple[DreamerAgent, "_LabelledEpisodes"]:
     """An agent trained on episodes whose reward under intent estimate k is +1 for k = 0 and -1
     for k = 1 (`reward_by_class`), but whose stored reward was made with a coin flip for the
