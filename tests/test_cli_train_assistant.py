@@ -134,6 +134,10 @@ def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistant
     assert [c["id"] for c in again["checkpoints"]] == [c["id"] for c in before["checkpoints"]]
     notes = Store(store).get(again["run_id"]).manifest["provenance"]["notes"]
     assert set(notes["time_shares"]) >= {"learning", "acting/humans"}
+    # where the config came from, beside the id (the same id came from the same preset either way)
+    assert notes["config_source"] == {"preset": "smoke", "config_file": None, "overrides": []}
+    pop = Store(store).get("humans/straightaway/stay").manifest["provenance"]["notes"]
+    assert pop["config_source"]["preset"] == "smoke" and pop["config_source"]["overrides"] == ["humans.checkpoints=4"]
 
 
 def test_a_partner_window_and_an_embedding_reading_head_are_recorded_and_evaluated_with(

@@ -90,6 +90,11 @@ class ResolvedConfig:
         """The config as recorded in run keys and manifests (`config.section.record`)."""
         return record(self.config)
 
+    def source(self) -> dict[str, Any]:
+        """Where the config came from (preset, file, `--set` overrides): recorded beside a run's
+        result, outside its id, so a reader knows the preset without comparing configs."""
+        return {"preset": self.preset, "config_file": self.config_file, "overrides": list(self.overrides)}
+
     def section(self, *names: str) -> dict[str, Any]:
         """The named top-level sections of the record only: what an artifact actually depends on."""
         full = self.record()

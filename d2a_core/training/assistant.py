@@ -106,12 +106,13 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
     with RunDir(store, key).exclusive() as run:
         return _run(store, bundle, pair, intents, method, cfg, groups, population_ids, config_record, key, run,
-                    seed, device, progress, move_aliases)
+                    seed, device, progress, move_aliases, resolved.source())
 
 
 def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...], method: Method, cfg: Any,
          groups: list, population_ids: list[str], config_record: dict[str, Any], key: str, run: RunDir, seed: int,
-         device: str, progress: ProgressFn | None, move_aliases: bool) -> dict[str, Any]:
+         device: str, progress: ProgressFn | None, move_aliases: bool,
+         config_source: dict[str, Any]) -> dict[str, Any]:
     """The body of `_train`, with the run's lock held."""
     ac = cfg.assistant
     # each intent's reference population (its expert, the panel); with one per intent, all of them
@@ -257,6 +258,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
         writer.add_json("run.json", result_record(result, leave_out=timing))
         for name in timing:
             writer.note(name, result[name])
+        writer.note("config_source", config_source)
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id, move_aliases)

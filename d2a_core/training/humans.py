@@ -238,6 +238,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
     with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
                       labels={**tags, "run_key": key}) as writer:
         writer.add_json("population.json", result_record(result))
+        writer.note("config_source", resolved.source())
         writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
     population = writer.artifact
     names = _aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases)
