@@ -276,24 +276,3 @@ def test_a_partner_window_shows_the_humans_earlier_actions_newest_first(track):
             expected = [0.01 * (t - k) if t - k > 0 else 0.0 for k in (1, 2, 3)]
             np.testing.assert_allclose(row[base.shape[1]:].reshape(3, 2)[:, 1], expected, atol=1e-6)
             np.testing.assert_array_equal(row[base.shape[1]:].reshape(3, 2)[:, 0], 0.0)
-
-
-def test_a_crash_charges_the_crash_forfeit_only_when_asked(track):
-    """A car steered hard into the right barrier: with `crash_forfeit` the crash step's
-    intervention term also charges sqrt(2) per step left to the time limit; before it, and
-    without the flag, the term is ||a_A|| alone."""
-    rows = {}
-    for forfeit in (False, True):
-        cfg = AssistantRewardConfig(alpha_r=0.0, crash_forfeit=forfeit)
-        env = RaceEnv(track)
-        collector = SharedCollector([env], HumanDrivers([ScriptedHuman([-1.0, 1.0])], 1, False, 0), PAIR, specs(1),
-                                    assistant=ScriptedAssistant([-0.6, 0.0]), reward_config=cfg, keep_steps=True)
-        rows[forfeit] = run(collector)[0]
-    assert rows[False]["collision"] or rows[False]["off_track"]
-    plain = np.array(rows[False]["steps_log"]["terms"])[:, ASSISTANT_TERMS.index("intervention")]
-    charged = np.array(rows[True]["steps_log"]["terms"])[:, ASSISTANT_TERMS.index("intervention")]
-    np.testing.assert_allclose(plain, 0.6)
-    np.testing.assert_allclose(charged[:-1], 0.6)
-    steps_left = env.steps_left  # after the crash
-    assert steps_left > 100
-    assert charged[-1] == pytest.approx(0.6 + np.sqrt(2.0) * steps_left)

@@ -27,14 +27,7 @@ and the expert's actor samples inside [-1, 1]. A push past the limit changes not
 action; `clip_blend: false` restores the unclipped sum.
 
 **w_interv.** The paper's intervention term has unit weight (`r^interv = -||a_A||_2`), the
-default here; a small sweep of it is in docs/experiments (assistant reward).
-
-**A crash must not pay.** The intervention term charges every step the assistant acts, and a
-crash ends the episode: an assistant that intervenes ~1 per step can end a charge larger than
-r^task's -100 by driving into something (the drivers' own reward has the same hole, closed by
-the intent term's forfeit, `d2a_core.objectives.rewards`). With `crash_forfeit` a crash also
-charges the intervention term what full-strength intervention (||a_A|| = sqrt 2) would cost to
-the time limit, so a crash is always worse than any way of driving on.
+default here; a small sweep of it: docs/experiments/assistant-reward.md.
 
 **What r_hat* contains.** The expert was trained on `r^H = r^task + r^y`, so `r_hat*` predicts the
 task terms too: with `alpha_r = 1` a crash is charged once by `r^task` and once more through the
@@ -57,7 +50,9 @@ from d2a_core.config.section import Section
 class AssistantRewardConfig(Section):
     """Weights of the assistant's reward (paper equation 6)."""
 
-    omit_at_default = {"crash_forfeit": False}
+    # a crash that also charges full-strength intervention to the time limit: measured on one
+    # population build (docs/experiments/assistant-safety.md), not a default, retired with its code
+    retired = {"crash_forfeit": False}
 
     w_interv: float = Field(1.0, ge=0, description="weight of the intervention norm ||a_A||_2 (the paper's: 1)")
     alpha_r: float = Field(1.0, ge=0, description="weight of the expert world model's reward r_hat*(y_hat)")
@@ -71,11 +66,6 @@ class AssistantRewardConfig(Section):
     clip_blend: bool = Field(
         True, description="measure the distance from clip(a_H + a_A, -1, 1), the executed action; false: the raw sum"
     )
-    crash_forfeit: bool = Field(
-        False,
-        description="a crash also charges the intervention term sqrt(2) per step left to the time limit, so "
-                    "crashing never ends the intervention charge cheaply; false: the paper's",
-    )
 
 
 class AssistantRewardTerms(NamedTuple):
@@ -85,7 +75,7 @@ class AssistantRewardTerms(NamedTuple):
     weight for that term is zero need not query one)."""
 
     task: np.ndarray  # r^task
-    intervention: np.ndarray  # ||a_A||_2 (plus the crash forfeit, where it applies)
+    intervention: np.ndarray  # ||a_A||_2
     expert_reward: np.ndarray  # r_hat*(y_hat)
     expert_distance: np.ndarray  # ||b - a*(y_hat)||_2
     total: np.ndarray  # r^A under the config the terms were made with
@@ -127,15 +117,13 @@ def assistant_reward(
     expert_reward: Optional[np.ndarray],
     expert_action: Optional[np.ndarray],
     cfg: AssistantRewardConfig,
-    crash_steps_left: Optional[np.ndarray] = None,
 ) -> AssistantRewardTerms:
     """The assistant's reward of one step for N environments.
 
     task (N,): r^task; assistant_action, human_action (N, A): a_A and a_H in env units;
     expert_reward (N,): r_hat*(y_hat), expert_action (N, A): a*(y_hat), both already taken from
     the expert of each env's inferred intent (`pick_intent`); either may be None when its weight
-    is zero (its term is then NaN in the result). crash_steps_left (N,): the control steps left to
-    the time limit where this step crashed, 0 elsewhere (charged only under `crash_forfeit`)."""
+    is zero (its term is then NaN in the result)."""
     task = np.asarray(task, np.float64).reshape(-1)
     n = task.shape[0]
     a_assist = np.asarray(assistant_action, np.float64).reshape(n, -1)
@@ -143,8 +131,6 @@ def assistant_reward(
     if a_assist.shape != a_human.shape:
         raise ValueError(f"assistant reward: action shapes differ: a_A {a_assist.shape}, a_H {a_human.shape}")
     intervention = np.linalg.norm(a_assist, axis=-1)
-    if cfg.crash_forfeit and crash_steps_left is not None:
-        intervention = intervention + np.sqrt(2.0) * np.asarray(crash_steps_left, np.float64).reshape(n)
     if expert_reward is None:
         r_star = np.full(n, np.nan)
     else:
@@ -168,15 +154,13 @@ def totals_by_intent(
     expert_rewards: np.ndarray,
     expert_actions: np.ndarray,
     cfg: AssistantRewardConfig,
-    crash_steps_left: Optional[np.ndarray] = None,
 ) -> np.ndarray:
     """r^A (K, N) as it would be had each of the K intents of the pair been inferred: row k uses
     the expert of intent k (`expert_rewards` (K, N), `expert_actions` (K, N, A)). The replay keeps
     these so that a learner can take the reward under its current estimate instead of the one it
     had when the step was collected (`DreamerConfig.reward_relabel_head`)."""
     rewards, actions = np.asarray(expert_rewards), np.asarray(expert_actions)
-    return np.stack([assistant_reward(task, assistant_action, human_action, rewards[k], actions[k], cfg,
-                                      crash_steps_left).total
+    return np.stack([assistant_reward(task, assistant_action, human_action, rewards[k], actions[k], cfg).total
                      for k in range(rewards.shape[0])])
 
 

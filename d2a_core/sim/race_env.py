@@ -220,11 +220,6 @@ class RaceEnv(gym.Env):
         return self.world.render(self.cfg.render_view, car=0, width=self.cfg.render_width,
                                  height=self.cfg.render_height)
 
-    @property
-    def steps_left(self) -> int:
-        """Control steps left before the time limit truncates the episode."""
-        return max(self._max_steps - self._step, 0)
-
     def close(self) -> None:
         world = getattr(self, "world", None)
         if world is not None:

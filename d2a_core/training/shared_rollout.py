@@ -280,7 +280,6 @@ class SharedCollector:
         clock = self._tick("acting/humans", clock)
         blended = np.clip(a_human + a_assist, -1.0, 1.0)
         task = np.zeros(self.n)
-        crash_steps_left = np.zeros(self.n)
         reset = np.zeros(self.n, bool)
         for i, env in enumerate(self.envs):
             if self._idle[i]:
@@ -305,8 +304,6 @@ class SharedCollector:
                 ep["human_action"].append(a_human[i].tolist())
                 ep["assistant_action"].append(a_assist[i].tolist())
             task[i] = info["reward_terms"]["task"]
-            if info["collision"] or info["off_track"]:
-                crash_steps_left[i] = env.unwrapped.steps_left
             self._window.push(i, self._obs[i, -PARTNER_SLOT:])  # the slot's action moves into the window
             self._obs[i] = obs
             self._human_obs[i] = obs
@@ -332,12 +329,10 @@ class SharedCollector:
             pick_intent(r_star, choose) if use_experts else None,
             pick_intent(self._a_star, choose) if use_experts else None,
             self.reward_config if use_experts else _without_experts(self.reward_config),
-            crash_steps_left,
         )
         by_intent = None
         if self.reward_by_intent and use_experts:
-            by_intent = totals_by_intent(task, a_assist, a_human, r_star, self._a_star, self.reward_config,
-                                         crash_steps_left)
+            by_intent = totals_by_intent(task, a_assist, a_human, r_star, self._a_star, self.reward_config)
         if a_star_now is not None:
             self._a_star = a_star_now
         self._tick("expert_filtering", clock)

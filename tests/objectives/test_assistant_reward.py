@@ -119,13 +119,8 @@ def test_totals_by_intent_are_the_reward_under_each_inferred_intent_by_hand():
         assert totals[k] == pytest.approx(alone.total)
 
 
-def test_crash_forfeit_charges_full_intervention_to_the_time_limit():
-    base = dict(task=np.array([-100.0, 0.0]), assistant_action=np.array([[0.6, 0.8], [0.6, 0.8]]),
-                human_action=np.zeros((2, 2)), expert_reward=np.zeros(2), expert_action=np.zeros((2, 2)))
-    left = np.array([50.0, 0.0])  # the first env crashed with 50 steps left
-    paper = assistant_reward(**base, cfg=AssistantRewardConfig(), crash_steps_left=left)
-    assert paper.total == pytest.approx([-101.0, -1.0])
-    forfeit = assistant_reward(**base, cfg=AssistantRewardConfig(crash_forfeit=True), crash_steps_left=left)
-    assert forfeit.intervention == pytest.approx([1.0 + 50 * np.sqrt(2.0), 1.0])
-    # a crash now costs more than intervening at full strength for every step it ended
-    assert forfeit.total[0] < -100.0 - 50 * np.sqrt(2.0)
+def test_the_retired_crash_forfeit_loads_only_at_its_former_default():
+    """Stored records may carry `crash_forfeit: false` (a retired experiment); true names the key."""
+    assert AssistantRewardConfig.model_validate({"crash_forfeit": False}) == AssistantRewardConfig()
+    with pytest.raises(ValueError, match="'crash_forfeit' is a retired setting"):
+        AssistantRewardConfig.model_validate({"crash_forfeit": True})
