@@ -131,3 +131,17 @@ def copy_store(store: Path, parent: Path) -> Path:
     target = parent / "store"
     shutil.copytree(store, target)
     return target
+
+
+def kill_after_state_saved(args: list[str] | tuple[str, ...], store: Path, timeout: float = 240) -> Path:
+    """Run `d2a ARGS --store STORE` (a training command) in a new interpreter, SIGKILL it once it
+    has saved a run state, and return that state's path."""
+    cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(store)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + timeout
+    while not list((store / "runs").glob("*/state.pt")):
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    return next((store / "runs").glob("*/state.pt"))

@@ -16,7 +16,7 @@ import pytest
 
 from d2a_core.artifacts import Store
 
-from d2a_test_helpers import REPO, run_cli
+from d2a_test_helpers import REPO, kill_after_state_saved, run_cli
 
 SMOKE = ("--preset", "smoke")
 
@@ -85,14 +85,7 @@ def test_gc_while_train_humans_runs_keeps_its_checkpoints(store):
 def test_a_killed_run_state_survives_gc_and_resumes(store):
     args = ["train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--set", "humans.checkpoints=3",
             "--json"]
-    cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(store)]
-    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 240
-    while not list((store / "runs").glob("*/state.pt")):
-        assert proc.poll() is None and time.monotonic() < deadline
-        time.sleep(0.2)
-    proc.kill()
-    proc.wait()
+    kill_after_state_saved(args, store)
     assert cli("artifacts", "gc", "--json", store=store).code == 0
     res = cli(*args, store=store)
     assert res.code == 0, res.stderr

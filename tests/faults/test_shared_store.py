@@ -18,7 +18,7 @@ import torch
 
 from d2a_core.artifacts import Store
 from d2a_core.artifacts.manifest import artifact_id, canonical_json
-from d2a_test_helpers import REPO, copy_store, run_cli
+from d2a_test_helpers import REPO, copy_store, kill_after_state_saved, run_cli
 
 SMOKE = ("--preset", "smoke")
 HUMANS = ("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--set", "humans.checkpoints=3",
@@ -88,23 +88,10 @@ def test_a_planted_pickle_in_a_checkpoint_runs_nothing_and_exits_3(assistants, t
     assert not marker.exists()
 
 
-def _killed_run_state(store: Path) -> Path:
-    """Start a smoke population run, SIGKILL it once it has saved its state; the state's path."""
-    cmd = [sys.executable, "-m", "d2a_cli", *HUMANS, "--store", str(store)]
-    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 240
-    while not list((store / "runs").glob("*/state.pt")):
-        assert proc.poll() is None and time.monotonic() < deadline
-        time.sleep(0.1)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    return next((store / "runs").glob("*/state.pt"))
-
-
 def test_a_damaged_or_planted_run_state_exits_3_naming_the_run_and_a_resume_says_it_resumed(pair_store_template,
                                                                                               tmp_path):
     store = copy_store(pair_store_template, tmp_path)
-    state = _killed_run_state(store)
+    state = kill_after_state_saved(HUMANS, store)
     good = state.read_bytes()
     # a flipped byte: named, with the way out
     damaged = bytearray(good)
