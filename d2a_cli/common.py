@@ -14,6 +14,7 @@ import json
 import math
 import os
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Callable, Optional
@@ -173,6 +174,7 @@ class TrainingBars:
         self._cleanup, self.total, self.return_label = cleanup, total, return_label
         self._tasks: dict[str, Any] = {}
         self._next_line: dict[str, float] = {}
+        self._started: dict[str, tuple[float, int]] = {}
 
     def reporter(self, name: str) -> Callable[[dict[str, Any]], None]:
         """The progress callback of run `name` (reports: env_steps, total, updates_per_s, recent_return
@@ -182,17 +184,29 @@ class TrainingBars:
                 self._bar.start()
                 self._cleanup.callback(self._bar.stop)
             if name not in self._tasks:
-                self._tasks[name] = self._bar.add_task(name, total=self.total, stats="")
+                # a resumed run starts its bar where it resumed, so the rate (and the ETA) is this process's
+                self._tasks[name] = self._bar.add_task(name, total=self.total, stats="", completed=p["env_steps"])
                 self._next_line[name] = 0.0
+                self._started[name] = (time.monotonic(), p["env_steps"])
             ret = p["recent_return"]
             reached = p.get("recent_progress_m")
             stats = (f"{p['updates_per_s']:.2f} upd/s" + (f"  {self.return_label} {ret:.1f}" if ret is not None else "")
-                     + (f"  reached {reached:.0f} m" if reached is not None else ""))
+                     + (f"  reached {reached:.0f} m" if reached is not None else "")
+                     + f"  ETA {self._eta(name, p['env_steps'], p['total'])}")
             self._bar.update(self._tasks[name], completed=p["env_steps"], stats=stats)
             if not err_console.is_terminal and p["env_steps"] / p["total"] >= self._next_line[name]:
                 err_console.print(f"{name}: {p['env_steps']}/{p['total']} env steps, {stats}")
                 self._next_line[name] += 0.05
         return progress
+
+    def _eta(self, name: str, done: int, total: int) -> str:
+        """Time left at this process's mean rate so far (checkpoint evaluations included)."""
+        started, first = self._started[name]
+        elapsed, steps = time.monotonic() - started, done - first
+        if steps <= 0 or elapsed < 1:
+            return "-:--:--"
+        left = int(round(elapsed / steps * max(total - done, 0)))
+        return f"{left // 3600}:{left // 60 % 60:02d}:{left % 60:02d}"
 
     def finish(self, name: str, result: dict[str, Any], what: str) -> None:
         """Close run `name`'s bar; a result reused from the store says so, and which code made it."""

@@ -162,6 +162,14 @@ class Store:
             raise UsageError(f"invalid run key {key!r}")
         return self._runs / key
 
+    def live_log_dir(self, name: str) -> Path:
+        """`logs/<name>/`: what a run writes while it trains (live curves for TensorBoard). Not
+        part of any artifact; `name` is a relative path of plain components."""
+        parts = name.split("/")
+        if not all(re.match(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$", part) for part in parts):
+            raise UsageError(f"invalid live log name {name!r}")
+        return self.root / "logs" / Path(*parts)
+
     def _check_root(self) -> None:
         """Reads of a store path that is a file must fail, not report an empty store."""
         if self.root.exists() and not self.root.is_dir():

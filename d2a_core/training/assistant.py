@@ -25,7 +25,6 @@ code version.
 from __future__ import annotations
 
 import io
-import json
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -48,6 +47,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
 from d2a_core.training.humans import load_human
+from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
 from d2a_core.training.run_state import RunDir, cached_result, result_record
@@ -147,13 +147,13 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window), act_space, intents,
                                seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
-    env_steps, checkpoints, curve, resumed_from, unassisted = 0, [], [], None, None
+    env_steps, checkpoints, rows, resumed_from, unassisted = 0, [], [], None, None
     drawn = [0] * len(population_ids)  # finished training episodes driven by each population's humans
     timer = _Timer()
     saved = run.load_state(device)
     if saved is not None:
         agent.load_state_dict(saved["agent"])
-        env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        env_steps, checkpoints, rows = saved["env_steps"], saved["checkpoints"], saved["curve"]
         unassisted, timer.seconds = saved["unassisted"], saved["timing"]
         drawn = saved.get("drawn", drawn)
         try:
@@ -194,6 +194,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     schedule = [round(ac.env_steps * (k + 1) / ac.checkpoints) for k in range(ac.checkpoints)]
     pending = [s for s in schedule if s > env_steps]
     tags = {"track": bundle.track.name, "pair": pair, "method": method.name, "seed": seed}
+    curve = LiveCurve(store, f"assistants/{bundle.track.name}/{pair}/{method.name}/seed{seed}-{key[:12]}", rows)
     recent: deque[dict[str, Any]] = deque(maxlen=40)
     last_metrics: dict[str, float] = {}
     next_log = (env_steps // ac.log_every + 1) * ac.log_every
@@ -232,13 +233,14 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
                     timer.add(name, seconds)
                 collector.timing.clear()
                 run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve,
+                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve.rows,
                                 "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn})
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
             if checkpoints else ""
         raise TrainingError(f"assistant ({method.name}) training stopped at env step {env_steps}: {exc}{last}") from None
     finally:
+        curve.close()
         for env in envs:
             env.close()
 
@@ -260,7 +262,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
             writer.note(name, result[name])
         writer.note("config_source", config_source)
         writer.add_json("unassisted.json", {"episodes": unassisted})
-        writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
+        writer.add_bytes("curve.jsonl", curve.jsonl_bytes())
     names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id, move_aliases)
     moved = store.point_aliases(names)
     run.clear_state()

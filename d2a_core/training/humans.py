@@ -20,7 +20,6 @@ returned from the store instead of training again, marked `cached` with the code
 from __future__ import annotations
 
 import io
-import json
 import shutil
 import time
 from collections import deque
@@ -48,6 +47,7 @@ from d2a_core.run_inputs import TrackBundle, load_track_bundle
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
+from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
 from d2a_core.training.run_state import RunDir, cached_result, load_checked, result_record, save_atomic
@@ -164,11 +164,11 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
     envs = [make_env() for _ in range(hc.num_envs)]
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)
     run_dir = run.path
-    env_steps, checkpoints, curve, resumed_from = 0, [], [], None
+    env_steps, checkpoints, rows, resumed_from = 0, [], [], None
     saved = run.load_state(device)
     if saved is not None:
         agent.load_state_dict(saved["agent"])
-        env_steps, checkpoints, curve = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        env_steps, checkpoints, rows = saved["env_steps"], saved["checkpoints"], saved["curve"]
         try:  # the state's checkpoints must still exist (run holds keep them from gc)
             store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
         except NotFoundError as exc:
@@ -180,6 +180,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
     pending = [s for s in schedule if s > env_steps]
     snapshots = _Snapshots(run_dir / "snapshots", hc.snapshot_every, after=env_steps)
     tags = {"track": bundle.track.name, "intent": intent}
+    curve = LiveCurve(store, f"humans/{bundle.track.name}/{intent}/seed{seed}-{key[:12]}", rows)
     recent: deque[dict[str, float]] = deque(maxlen=20)
     last_metrics: dict[str, float] = {}
     next_log = (env_steps // hc.log_every + 1) * hc.log_every
@@ -212,12 +213,13 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
                 # hold before the state names the new checkpoint, so the holds always cover it
                 store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
                 run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve})
+                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve.rows})
     except TrainingError as exc:
         last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
             if checkpoints else ""
         raise TrainingError(f"{intent} training stopped at env step {env_steps}: {exc}{last}") from None
     finally:
+        curve.close()
         for env in envs:
             env.close()
 
@@ -239,7 +241,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
                       labels={**tags, "run_key": key}) as writer:
         writer.add_json("population.json", result_record(result))
         writer.note("config_source", resolved.source())
-        writer.add_bytes("curve.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in curve).encode())
+        writer.add_bytes("curve.jsonl", curve.jsonl_bytes())
     population = writer.artifact
     names = _aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases)
     moved = store.point_aliases(names)
