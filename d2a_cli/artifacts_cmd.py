@@ -200,3 +200,47 @@ def export(
     paths = store.export(art_id, directory)
     run.emit({"id": art_id, "files": [str(p) for p in paths]},
              lambda r: [out_console.print(p, highlight=False) for p in r["files"]])
+
+
+@app.command("pack")
+@with_common_options
+def pack(
+    refs: Annotated[list[str], typer.Argument(help="Artifacts to pack (ids, unique id prefixes or aliases).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Bundle file to write (a tar file).")],
+    *,
+    run: RunContext,
+) -> None:
+    """Write artifacts with everything they were made from (their lineage) and the aliases that
+    name them into one file that `d2a artifacts import` takes into another store."""
+    from d2a_core.artifacts.bundle import pack as pack_bundle
+
+    result = pack_bundle(run.store(), refs, out)
+    run.emit(result, lambda r: out_console.print(
+        f"{r['bundle']}: {r['artifacts']} artifacts, {r['files']} files, {_human_size(r['bytes'])}", highlight=False))
+
+
+@app.command("import")
+@with_common_options
+def import_(
+    bundle: Annotated[Path, typer.Argument(help="Bundle file written by d2a artifacts pack.")],
+    *,
+    run: RunContext,
+) -> None:
+    """Take a bundle into this store. Every file name, hash and checkpoint is checked before
+    anything is written: a damaged or tampered bundle, or a checkpoint that would run code when
+    loaded, is refused (exit 3) and the store is left as it was. Aliases the store already uses
+    for other artifacts are kept."""
+    from d2a_core.artifacts.bundle import unpack
+    from d2a_core.training.torch_files import check_shared_file
+
+    result = unpack(run.store(), bundle, check_shared_file)
+
+    def render(r: dict[str, Any]) -> None:
+        out_console.print(f"imported {r['imported']} artifacts ({r['already_present']} already here); roots: "
+                          + ", ".join(i[:12] for i in r["roots"]), highlight=False)
+        for alias, target in r["aliases"].items():
+            out_console.print(f"{alias} -> {target[:12]}", highlight=False)
+        for alias, current in r["aliases_kept"].items():
+            err_console.print(f"alias {alias} kept: it names {current[:12]} here", highlight=False)
+
+    run.emit(result, render)

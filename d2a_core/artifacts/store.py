@@ -112,6 +112,11 @@ class _HashingWriter:
         return True
 
 
+def _fsync_file(path: Path) -> None:
+    with storage_errors("cannot write to the store", path), open(path, "rb") as fh:
+        os.fsync(fh.fileno())
+
+
 class Store:
     """The artifact store rooted at `root` (created on first write)."""
 
@@ -537,6 +542,60 @@ class Store:
         if not isinstance(prov, dict) or not isinstance(prov.get("created"), str):
             raise BadFile("manifest provenance is damaged")
         return manifest
+
+    def parse_manifest(self, data: bytes, art_id: str) -> dict[str, Any]:
+        """A manifest from elsewhere (a bundle), checked as strictly as the store's own: BadFile
+        names what is wrong with it."""
+        return self._parse_manifest(data, art_id)
+
+    def manifest_bytes(self, ref: str) -> bytes:
+        """The stored manifest of an artifact, byte for byte (after checking it)."""
+        art_id = self.get(ref).id
+        with storage_errors("cannot read the manifest", self._manifest_path(art_id)):
+            return self._manifest_path(art_id).read_bytes()
+
+    def has(self, art_id: str) -> bool:
+        """Whether the store holds a readable manifest with this full id."""
+        try:
+            self._load_manifest(art_id)
+            return True
+        except (NotFoundError, IntegrityError, StoreError):
+            return False
+
+    def adopt(self, ids: list[str], manifests: dict[str, dict[str, Any]], manifest_dir: Path, blob_dir: Path) -> None:
+        """Land artifacts checked elsewhere (`bundle.unpack`): their blobs from `blob_dir/<sha256>`,
+        then their manifests from `manifest_dir/<id>.json`, each after its inputs, the way the
+        store lands its own (a killed import leaves only orphan temp files). The files are moved."""
+        order: list[str] = []
+        seen: set[str] = set()
+
+        def visit(art_id: str) -> None:
+            if art_id in seen or art_id not in manifests:
+                return
+            seen.add(art_id)
+            for parent in manifests[art_id]["inputs"]:
+                visit(parent)
+            order.append(art_id)
+
+        for art_id in ids:
+            visit(art_id)
+        with self.lease(), self._lock(exclusive=False):
+            for art_id in order:
+                for info in manifests[art_id]["files"].values():
+                    blob = blob_dir / info["sha256"]
+                    if blob.exists():
+                        _fsync_file(blob)
+                        self._install(blob, self._blob_path(info["sha256"]),
+                                      lambda p, d=info["sha256"]: self._blob_ok(p, d))
+            for art_id in order:
+                gone = [i for i in manifests[art_id]["inputs"] if not self._manifest_path(i).is_file()]
+                if gone:
+                    raise NotFoundError(f"input artifact {gone[0][:12]} of {art_id[:12]} left store {self.root} "
+                                        "during the import")
+                path = manifest_dir / f"{art_id}.json"
+                _fsync_file(path)
+                self._install(path, self._manifest_path(art_id), lambda p, a=art_id: self._manifest_ok(p, a))
+                self._register(art_id)
 
     def _load_manifest(self, art_id: str, ref: str | None = None) -> dict[str, Any]:
         path = self._manifest_path(art_id)

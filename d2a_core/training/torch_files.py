@@ -52,3 +52,11 @@ def load_torch(source: Path | BinaryIO | bytes, what: str, device: str = "cpu", 
         raise IntegrityError(f"{what} is not a plain torch file of tensors and data, so it was not loaded "
                              f"(nothing in it was executed): {reason[:300]}"
                              + (f"; {hint}" if hint else "")) from None
+
+
+def check_shared_file(name: str, path: Path, what: str) -> None:
+    """Refuse (IntegrityError) a file from another store that d2a would read as a torch file
+    (`*.pt`) unless it holds only tensors and plain data; nothing in it runs. Other files d2a
+    reads as JSON, NPZ without pickles, MCAP or text."""
+    if name.endswith(".pt"):
+        load_torch(path, what, "cpu", "it cannot come into this store")
