@@ -60,8 +60,12 @@ def train_humans(
                               f"{m['collision']:.2f}", f"{m['off_track']:.2f}", f"{c['criterion']:.2f}",
                               f"{m['mean_speed_m_s']:.1f}",
                               ("E " if c["id"] == pop["expert"] else "") + ("yes" if c["meets_intent"] else "no"))
-            if any(c.get("filled") for c in pop["checkpoints"]):
-                table.caption = "*: a snapshot added to fill the imperfect span (humans.snapshot_every)"
+            table.caption = ("per checkpoint, over its evaluation episodes: fin = finished, fin ahead = finished "
+                             "ahead of the opponent, coll = collided, off = left the track (shares of episodes); "
+                             "held = the intent's criterion (pass: finished ahead; stay: finished never ahead; "
+                             "left/right: share of steps on that side); ok = meets the intent; E = the expert"
+                             + ("; *: a snapshot added to fill the imperfect span (humans.snapshot_every)"
+                                if any(c.get("filled") for c in pop["checkpoints"]) else ""))
             out_console.print(table)
 
     run.emit({"populations": populations}, render)

@@ -22,7 +22,6 @@ aliases land the way the store writes its own, so a killed import leaves no half
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re

@@ -27,8 +27,6 @@ ENV_SEED_BASE = 70_000_003  # render's env seeds: ENV_SEED_BASE + seed, apart fr
 
 
 def _default_human(store: Store, assistant) -> str:
-    from d2a_core.evaluation.criteria import performance_fractions  # noqa: F401 - defined once there
-
     track, first = assistant.artifact.labels["track"], assistant.intents[0]
     population = store.read_json(f"humans/{track}/{first}", "population.json")
     imperfect = [c for c in population["checkpoints"] if c["id"] != population["expert"]
