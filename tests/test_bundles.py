@@ -59,6 +59,7 @@ def test_an_imported_assistant_evaluates_with_the_same_numbers(trained_assistant
     res = cli("artifacts", "import", str(path), "--json", store=target)
     assert res.code == 0, res.stderr
     assert res.json["imported"] == packed["artifacts"] and res.json["aliases"][ASSISTANT] == assistant_id
+    assert Store(target).resolve(f"imported/{assistant_id[:12]}") == assistant_id
     assert cli("artifacts", "verify", "--json", store=target).code == 0
     args = ("eval", "--track", "straightaway", "--pair", "pass-stay", "--assistant", assistant_id,
             "--episodes", "1", "--json")

@@ -17,7 +17,9 @@ input must be in the bundle or already in the store, and every file passes the c
 `check_file` (d2a passes the restricted torch loader for `*.pt` files: a checkpoint whose pickle
 asks for anything but tensors and plain data is refused without running). Any failure raises
 IntegrityError (exit 3) and leaves the store as it was. Then blobs, manifests (inputs first) and
-aliases land the way the store writes its own, so a killed import leaves no half artifact.
+aliases land the way the store writes its own, so a killed import leaves no half artifact. Each
+root also gets `imported/<first 12 hex of its id>`, which keeps it (and its lineage) from gc
+whatever happens to the bundle's other aliases.
 """
 
 from __future__ import annotations
@@ -217,6 +219,11 @@ def _land(store: Store, scratch: Path, index: dict[str, Any], manifests: dict[st
     new = [i for i in index["artifacts"] if not store.has(i)]
     store.adopt(new, {i: manifests[i] for i in new}, scratch / "manifests", scratch / "objects")
     aliases_set, aliases_kept = {}, {}
+    # every root gets a name of its own, so nothing imported is left for gc when the store's own
+    # results keep the bundle's aliases
+    for root in index["roots"]:
+        store.tag(root, f"imported/{root[:12]}")
+        aliases_set[f"imported/{root[:12]}"] = root
     for alias, target in sorted(index["aliases"].items()):
         try:
             current = store.resolve(alias)
