@@ -267,3 +267,18 @@ def test_eval_of_a_named_checkpoint_keeps_the_final_alias(cli, eval_store, train
     assert mixed.code == 2 and "--assistant" in mixed.json["error"]["message"]
     pop = cli("eval", *PAIR, "--assistant", "humans/straightaway/pass", "--json", store=eval_store)
     assert pop.code == 2 and "not an assistant" in pop.json["error"]["message"]
+
+
+def test_a_repeated_evaluation_takes_its_alias_back(cli, eval_store, trained_assistants):
+    """An evaluation asked for again (stored, so returned as it is) is again the one its alias names."""
+    run = next(a for a in trained_assistants[1]["assistants"] if a["method"] == "dream2assist")
+    own = [a for p in run["populations"] for a in ("--humans", p)]
+    alias = "eval/straightaway/pass-stay/dream2assist/seed0"
+    args = (*PAIR, "--assistant", "assistants/straightaway/pass-stay/dream2assist/seed0", *own, "--json")
+    one = cli("eval", *args, "--episodes", "1", store=eval_store)
+    two = cli("eval", *args, "--episodes", "2", store=eval_store)
+    assert one.code == 0 and two.code == 0, two.stderr
+    assert Store(eval_store).resolve(alias) == two.json["evaluations"][0]["id"] != one.json["evaluations"][0]["id"]
+    again = cli("eval", *args, "--episodes", "1", store=eval_store)
+    assert again.json["evaluations"][0]["cached"]
+    assert Store(eval_store).resolve(alias) == one.json["evaluations"][0]["id"]

@@ -294,7 +294,10 @@ class _EvalRun:
         key = self.run_key(art_id)
         done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key and store.is_whole(a.id)]
         if done:
-            return dict(store.read_json(done[-1].id, "eval.json")["result"], id=done[-1].id, cached=True)
+            result = store.read_json(done[-1].id, "eval.json")["result"]
+            # the request names this evaluation again: its alias comes back to it
+            store.tag(done[-1].id, self.alias(name, seed, art_id, bool(result.get("held_out"))))
+            return dict(result, id=done[-1].id, cached=True)
         unassisted = self.unassisted()
         assistant, _, trained_on, window = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
         if tuple(trained_on) != tuple(self.intents):
@@ -322,12 +325,17 @@ class _EvalRun:
             for condition, rows in (("unassisted", unassisted), ("assisted", assisted)):
                 for r in rows:
                     writer.add_file(_log_name(condition, r), r["log"])
-        suffix = self.held_out_suffix if held_out else ""
-        if store.refs().get(assistant_alias(self.track, self.pair, name, seed)) != art_id:
-            # an earlier checkpoint (or a run the alias no longer names) must not take the final's alias
-            suffix = f"/checkpoint-{art_id[:12]}{suffix}"
-        store.tag(writer.artifact.id, f"eval/{self.track}/{self.pair}/{name}/seed{seed}{suffix}")
+        store.tag(writer.artifact.id, self.alias(name, seed, art_id, held_out))
         return dict(result, id=writer.artifact.id, cached=False)
+
+    def alias(self, name: str, seed: int, art_id: str, held_out: bool) -> str:
+        """`eval/<track>/<pair>/<method>/seed<k>`, with `/checkpoint-<id>` for an assistant that
+        its run's alias does not name (an earlier checkpoint must not take the final's alias) and
+        `/humans-<ids>` for held-out humans."""
+        suffix = self.held_out_suffix if held_out else ""
+        if self.store.refs().get(assistant_alias(self.track, self.pair, name, seed)) != art_id:
+            suffix = f"/checkpoint-{art_id[:12]}{suffix}"
+        return f"eval/{self.track}/{self.pair}/{name}/seed{seed}{suffix}"
 
 
 def _log_name(condition: str, row: Mapping[str, Any]) -> str:
