@@ -1,7 +1,8 @@
 """Import pybullet without its banner on stdout.
 
-pybullet prints its build time from C on import, straight to file descriptor 1, which would
-corrupt `--json` output and clutters every log. The import runs with fd 1 pointed at /dev/null.
+pybullet prints its build time from C on import (to fd 1 or 2, depending on the build), which
+would corrupt `--json` output or clutter every log. The import runs with fds 1 and 2 pointed at
+/dev/null; an import failure is still raised as an exception.
 """
 
 from __future__ import annotations
@@ -12,15 +13,19 @@ import sys
 
 def _import_quietly():
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
     sink = os.open(os.devnull, os.O_WRONLY)
     try:
-        os.dup2(sink, 1)
+        for fd in saved:
+            os.dup2(sink, fd)
         import pybullet
     finally:
         sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
+        sys.stderr.flush()
+        for fd, copy in saved.items():
+            os.dup2(copy, fd)
+            os.close(copy)
         os.close(sink)
     return pybullet
 
