@@ -124,11 +124,13 @@ def render(store: Store, ref: str, out: Path, human: str | None = None, seed: in
                     raise NotFoundError(f"evaluation {art.id[:12]} has no episode {name!r}; it has e.g. "
                                         + ", ".join(logs[:4]))
                 twin = name.replace("/assisted/", "/unassisted/")
+                chosen = read_episode(store.path(art.id, name))
+                driver = f"{chosen.metadata.get('intent', '')} driver".strip()
                 panels = []
                 if twin != name and twin in art.files:
-                    panels.append(("unassisted", read_episode(store.path(art.id, twin))))
-                panels.append(("assisted" if "/assisted/" in name else Path(name).stem,
-                               read_episode(store.path(art.id, name))))
+                    panels.append((f"{driver} alone", read_episode(store.path(art.id, twin))))
+                method = art.labels.get("method", "the assistant")
+                panels.append((f"{driver} with {method}" if "/assisted/" in name else Path(name).stem, chosen))
                 track = _track(store, None, art.id)
                 what = {"evaluation": art.id, "episode": name}
             else:
