@@ -252,8 +252,8 @@ def test_usage_errors_name_what_to_do(cli, pair_store):
     assert res.code == 2 and "one population per intent" in res.json["error"]["message"]
     # humans trained on another observation layout: exit 2 naming the setting, nothing stored
     before = {art.id for art in Store(pair_store).list()}
-    res = cli("train-assistant", *PAIR, *SMOKE, "--set", "env.observe_clearance=true", "--json", store=pair_store)
-    assert res.code == 2 and "env.observe_clearance=false" in res.json["error"]["message"]
+    res = cli("train-assistant", *PAIR, *SMOKE, "--set", "env.edge_lookahead_m=[10.0]", "--json", store=pair_store)
+    assert res.code == 2 and "env.edge_lookahead_m" in res.json["error"]["message"]
     assert {art.id for art in Store(pair_store).list()} == before
 
 

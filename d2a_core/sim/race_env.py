@@ -13,9 +13,6 @@ Observation (a flat float32 `Box`; `observation_names()` lists every entry):
   frame, its heading relative to ours (cos, sin), and whether it is still racing (once its replay
   has ended it has left the track: it is shown far ahead, `FAR_AHEAD_M` in the car frame, not
   at the car's own position);
-- with `env.observe_clearance`, `opp_clearance`: the distance between the two cars' bodies (<= 0
-  where they touch: the collision that ends the episode), capped; the relative position alone
-  leaves the world model to learn the cars' outlines, which it did not at `quick` size;
 - partner action (2 values): the other driver's last action under shared control, zeros when one
   agent drives alone. Never the intent.
 
@@ -66,14 +63,10 @@ OPPONENT_FIELDS = ("ds", "de", "dspeed", "opp_dx", "opp_dy", "opp_cos_dyaw", "op
 PARTNER_FIELDS = ("partner_steer", "partner_accel")
 
 
-CLEARANCE_FIELD = "opp_clearance"
-
-
-def observation_names(lookahead: tuple[float, ...] | list[float] = DEFAULT_LOOKAHEAD_M,
-                      clearance: bool = False) -> list[str]:
-    """Name of every observation entry, in order (`clearance`: with `env.observe_clearance`)."""
+def observation_names(lookahead: tuple[float, ...] | list[float] = DEFAULT_LOOKAHEAD_M) -> list[str]:
+    """Name of every observation entry, in order."""
     edges = [f"{side}_edge_{d:g}m_{axis}" for d in lookahead for side in ("left", "right") for axis in ("x", "y")]
-    return [*EGO_FIELDS, *edges, *OPPONENT_FIELDS, *([CLEARANCE_FIELD] if clearance else []), *PARTNER_FIELDS]
+    return [*EGO_FIELDS, *edges, *OPPONENT_FIELDS, *PARTNER_FIELDS]
 
 
 def _wrap(angle: float) -> float:
@@ -114,7 +107,7 @@ class RaceEnv(gym.Env):
         self.intent = intent
         self.render_mode = render_mode
 
-        self.observation_names = observation_names(self.cfg.edge_lookahead_m, self.cfg.observe_clearance)
+        self.observation_names = observation_names(self.cfg.edge_lookahead_m)
         n_obs = len(self.observation_names)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(n_obs,), dtype=np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
@@ -305,9 +298,6 @@ class RaceEnv(gym.Env):
                        cos_yaw * ody - sin_yaw * odx, math.cos(dyaw), math.sin(dyaw), 1.0)
         else:
             values += (self._ds, self._e - self._opp_e, 0.0, FAR_AHEAD_M, 0.0, 1.0, 0.0, 0.0)
-        if self.cfg.observe_clearance:
-            cap = self.cfg.clearance_cap_m
-            values.append(self.world.car_clearance(0, 1, cap) if self._opp_row is not None else cap)
         values += self._partner_list
         return np.array(values, dtype=np.float32)
 

@@ -208,7 +208,6 @@ class RaceWorld:
         self._sweep_enabled = cfg.sweep_barrier_crossing
         diagonal = math.sqrt(sum(v * v for v in self.car_size))
         self._pair_skip_distance_sq = (diagonal + cfg.contact_distance_m + 0.01) ** 2
-        self._diagonal = diagonal
         self._sweep_min_sq = (cfg.barrier_thickness_m + min(self.car_size[:2])) ** 2
         self._pose: list[tuple[float, float, float, float, float, float]] = []  # x, y, z, yaw, pitch, roll
         # Sweep-ray point of each car's current pose; None while parked, so no sweep starts there.
@@ -441,15 +440,6 @@ class RaceWorld:
     def car_pose(self, i: int) -> tuple[float, float, float, float, float, float]:
         """The last pose given to ``set_car_pose`` for car ``i``: ``(x, y, z, yaw, pitch, roll)``."""
         return self._pose[i]
-
-    def car_clearance(self, i: int, j: int, cap: float) -> float:
-        """Distance between the bodies of cars `i` and `j` at their current poses (negative when they
-        overlap; `collisions` reports a touch at <= `contact_distance_m`), capped at `cap` metres."""
-        (xi, yi, zi), (xj, yj, zj) = self._centre[i], self._centre[j]
-        if (xi - xj) ** 2 + (yi - yj) ** 2 + (zi - zj) ** 2 > (cap + self._diagonal) ** 2:
-            return cap  # the bodies cannot be within `cap` (no pybullet call, as for most steps)
-        points = pb.getClosestPoints(self.car_body_ids[i], self.car_body_ids[j], cap, physicsClientId=self._client)
-        return min([cap] + [point[8] for point in points])  # [8]: contactDistance
 
     def collisions(self) -> Collisions:
         """Which cars touch each other and which touch (or crossed) a barrier, at their current poses."""

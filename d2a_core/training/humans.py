@@ -84,13 +84,12 @@ def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu"
     if art.kind != "human":
         raise UsageError(f"{ref} is a {art.kind} artifact, not a human checkpoint")
     trained = trained_env_config(art)
-    names = observation_names(trained.edge_lookahead_m, trained.observe_clearance)
+    names = observation_names(trained.edge_lookahead_m)
     if len(names) != int(np.prod(obs_space.shape)):
         raise UsageError(
-            f"human {art.id[:12]} was trained on observations of {len(names)} values (env.observe_clearance="
-            f"{str(trained.observe_clearance).lower()}, {len(trained.edge_lookahead_m)} edge lookaheads), this env "
-            f"gives {int(np.prod(obs_space.shape))}: use the env settings its population was trained with "
-            "(--set env.observe_clearance=...)")
+            f"human {art.id[:12]} was trained on observations of {len(names)} values "
+            f"(env.edge_lookahead_m={trained.edge_lookahead_m}), this env gives {int(np.prod(obs_space.shape))}: "
+            "use the env settings its population was trained with (--set env.edge_lookahead_m=...)")
     state = load_torch(store.path(art.id, "agent.pt"), f"human checkpoint {art.id[:12]} file 'agent.pt'", device,
                        "the store holds a file that d2a did not write; remove the artifact or the store")
     config = DreamerConfig.model_validate({**state["config"], "device": device})

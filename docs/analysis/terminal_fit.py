@@ -10,8 +10,8 @@ against the reward the env paid.
 Prints one markdown row per checkpoint and outcome. `wm/terminal_continue` in a training curve
 is the same continue figure on replayed batches; this script splits it by what ended the episode
 and shows the states the model saw there (gap to the opponent along and across the road), how
-far the world model's reconstruction of that gap is off, and, for checkpoints trained with
-`env.observe_clearance`, the observed and reconstructed clearance between the cars.
+far the world model's reconstruction of that gap is off. (Checkpoints trained with the retired
+`env.observe_clearance` need d2a at commit 805c724, which also printed the clearance columns.)
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def outcome_of(info: dict, terminated: bool) -> str:
 
 def checkpoint_and_env(store: Store, human_id: str) -> tuple[DreamerAgent, RaceEnv]:
     """A stored human checkpoint and an env of its intent on its track, with the env settings it
-    was trained in (e.g. `env.observe_clearance`)."""
+    was trained in."""
     art = store.get(human_id)
     config = load("quick").config
     config = config.model_copy(update={"env": trained_env_config(art)})
@@ -61,7 +61,6 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
     agent, env = checkpoint_and_env(store, human_id)
     generator = torch.Generator().manual_seed(seed)
     ds_at, de_at = env.observation_names.index("ds"), env.observation_names.index("de")
-    clear_at = env.observation_names.index("opp_clearance") if "opp_clearance" in env.observation_names else None
     rows: dict[str, list[tuple]] = defaultdict(list)
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
@@ -76,8 +75,7 @@ def drive(store: Store, human_id: str, episodes: int, explore: bool, seed: int) 
                 outcome = outcome_of(info, terminated) if done else "running"
                 rows[outcome].append((float(predicted["continue"][0]), float(predicted["reward"][0]), reward,
                                       float(info["ds"]), float(info["de"]), float(decoded[ds_at]),
-                                      float(decoded[de_at]),
-                                      *((float(obs[clear_at]), float(decoded[clear_at])) if clear_at else ())))
+                                      float(decoded[de_at])))
             if done:
                 break
             obs, reward, terminated, truncated, info = env.step(action[0])
@@ -108,8 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {human_id[:12]} ({env_step}) | {outcome} | {len(a)} | {a[:, 0].mean():.2f} "
                   f"({a[:, 0].min():.2f}-{a[:, 0].max():.2f}) | {a[:, 1].mean():.1f} | {a[:, 2].mean():.1f} "
                   f"| {a[:, 3].mean():.1f} | {np.abs(a[:, 4]).mean():.1f} "
-                  f"| {np.abs(a[:, 5] - a[:, 3]).mean():.2f} / {np.abs(a[:, 6] - a[:, 4]).mean():.2f} |"
-                  + (f" clearance {a[:, 7].mean():.2f}, decoded {a[:, 8].mean():.2f} |" if a.shape[1] > 7 else ""))
+                  f"| {np.abs(a[:, 5] - a[:, 3]).mean():.2f} / {np.abs(a[:, 6] - a[:, 4]).mean():.2f} |")
     return 0
 
 

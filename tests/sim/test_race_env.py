@@ -338,30 +338,8 @@ def test_a_start_further_along_the_race_keeps_the_grid_gap_and_the_clock(hairpin
             env.reset(seed=0, options=bad)
 
 
-def test_clearance_observation_shows_the_gap_that_ends_the_episode(straight):
-    """With `observe_clearance`, `opp_clearance` (before the partner slot) is the distance between
-    the two bodies: the cap when far, the lateral gap minus the car width beside the opponent,
-    shrinking while the car drives into a parked opponent, and <= 0 on the step that collides."""
-    grid_s = straight.s[0] + 60.0
-    cfg = EnvConfig(observe_clearance=True)
-    env = RaceEnv(straight, replays=[parked_opponent(straight, grid_s, 0.0)], intent="pass", env_config=cfg)
-    names = env.observation_names
-    assert names == observation_names(cfg.edge_lookahead_m, clearance=True)
-    assert names.index("opp_clearance") == len(names) - 3 and len(names) == len(observation_names()) + 1
-    at = names.index("opp_clearance")
-    obs, _ = env.reset(seed=0, options={"ego_s": grid_s - 40.0, "ego_e": 0.0, "start_speed": 10.0})
-    assert obs[at] == cfg.clearance_cap_m
-    obs, _ = env.reset(seed=0, options={"ego_s": grid_s, "ego_e": 3.5, "start_speed": 0.0})  # beside it
-    assert obs[at] == pytest.approx(3.5 - cfg.car_width_m, abs=0.05)
-    obs, _ = env.reset(seed=0, options={"ego_s": grid_s - 20.0, "ego_e": 0.0, "start_speed": 10.0})
-    seen = [obs[at]]
-    while True:
-        obs, _, terminated, truncated, info = env.step(np.array([0.0, 0.3]))
-        seen.append(obs[at])
-        if terminated or truncated:
-            break
-    assert info["collision_car"] and seen[-1] <= env.world.config.contact_distance_m
-    gaps = [g for g in seen[:-1] if g < cfg.clearance_cap_m]
-    assert len(gaps) >= 3 and all(b < a for a, b in zip(gaps, gaps[1:])) and min(gaps) > 0.0
-    # off by default: the observation the stored populations were trained on
-    assert "opp_clearance" not in RaceEnv(straight).observation_names
+def test_the_retired_clearance_observation_loads_only_at_its_old_default():
+    """`env.observe_clearance` is retired: a stored record with it off loads, on is an error."""
+    assert EnvConfig.model_validate({"observe_clearance": False, "clearance_cap_m": 10.0}) == EnvConfig()
+    with pytest.raises(ValueError, match="observe_clearance"):
+        EnvConfig.model_validate({"observe_clearance": True})
