@@ -39,7 +39,7 @@ from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.artifacts import Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.section import record
-from d2a_core.errors import NotFoundError, TrainingError, UsageError
+from d2a_core.errors import TrainingError, UsageError
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
 from d2a_core.sim.race_env import RaceEnv
@@ -50,7 +50,7 @@ from d2a_core.training.humans import load_human
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
-from d2a_core.training.run_state import RunDir, cached_result, result_record
+from d2a_core.training.run_state import RunDir, RunProgress, cached_result, result_record
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 from d2a_core.training.torch_files import load_torch
 
@@ -147,22 +147,15 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window), act_space, intents,
                                seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
-    env_steps, checkpoints, rows, resumed_from, unassisted = 0, [], [], None, None
-    drawn = [0] * len(population_ids)  # finished training episodes driven by each population's humans
+    state = RunProgress(store, run, inputs, ac.env_steps, ac.checkpoints)
     timer = _Timer()
-    saved = run.load_state(device)
-    if saved is not None:
-        agent.load_state_dict(saved["agent"])
-        env_steps, checkpoints, rows = saved["env_steps"], saved["checkpoints"], saved["curve"]
-        unassisted, timer.seconds = saved["unassisted"], saved["timing"]
-        drawn = saved.get("drawn", drawn)
-        try:
-            store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
-        except NotFoundError as exc:
-            raise TrainingError(f"cannot resume the assistant from {run.state_path}: {exc}; {run.restart_hint}") from None
-        resumed_from = env_steps
-    else:
-        store.hold_run(key, inputs)
+    saved = state.resume(agent, device, "the assistant")
+    env_steps = state.env_steps
+    unassisted = saved.get("unassisted")
+    drawn = saved.get("drawn", [0] * len(population_ids))  # finished training episodes per population
+    timer.seconds = saved.get("timing", timer.seconds)
+    if not saved:
+        state.hold()
 
     # episodes: intent uniform, then a checkpoint of its population, fresh env seeds (after a
     # resume, seeds continue from the step count so the continued run does not replay old episodes)
@@ -191,10 +184,11 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
         unassisted = evaluate_panel(None)
         timer.add("evaluation", time.perf_counter() - started)
 
-    schedule = [round(ac.env_steps * (k + 1) / ac.checkpoints) for k in range(ac.checkpoints)]
-    pending = [s for s in schedule if s > env_steps]
+    pending = state.pending()
     tags = {"track": bundle.track.name, "pair": pair, "method": method.name, "seed": seed}
-    curve = LiveCurve(store, f"assistants/{bundle.track.name}/{pair}/{method.name}/seed{seed}-{key[:12]}", rows)
+    curve = LiveCurve(store, f"assistants/{bundle.track.name}/{pair}/{method.name}/seed{seed}-{key[:12]}",
+                      state.curve_rows)
+    state.curve_rows = curve.rows
     recent: deque[dict[str, Any]] = deque(maxlen=40)
     last_metrics: dict[str, float] = {}
     next_log = (env_steps // ac.log_every + 1) * ac.log_every
@@ -206,6 +200,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
                 drawn[human_population[row["human"]]] += 1
             recent.extend(finished)
             env_steps += collector.n
+            state.env_steps = env_steps
             started = time.perf_counter()
             for _ in range(agent.updates_due(env_steps)):
                 last_metrics = agent.train_step()
@@ -225,25 +220,22 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
             if env_steps >= pending[0]:
                 pending.pop(0)
                 started = time.perf_counter()
-                checkpoints.append(_store_checkpoint(store, agent, the_panel, unassisted, intents, inputs, env_steps,
-                                                     ac, config_record, seed, tags, evaluate_panel))
+                checkpoint = _store_checkpoint(store, agent, the_panel, unassisted, intents, inputs, env_steps,
+                                               ac, config_record, seed, tags, evaluate_panel)
                 timer.add("evaluation", time.perf_counter() - started)
-                store.hold_run(key, [*inputs, *(c["id"] for c in checkpoints)])
                 for name, seconds in collector.timing.items():
                     timer.add(name, seconds)
                 collector.timing.clear()
-                run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve.rows,
-                                "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn})
+                state.checkpointed(checkpoint, {"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
+                                                "unassisted": unassisted, "timing": timer.seconds, "drawn": drawn})
     except TrainingError as exc:
-        last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
-            if checkpoints else ""
-        raise TrainingError(f"assistant ({method.name}) training stopped at env step {env_steps}: {exc}{last}") from None
+        raise state.stopped(exc, f"assistant ({method.name})") from None
     finally:
         curve.close()
         for env in envs:
             env.close()
 
+    checkpoints = state.checkpoints
     final = checkpoints[-1]
     runtime = {"device": device, "torch_threads": torch.get_num_threads(), "cpu_kernels": native.status(),
                "mkl_on_amd": mkl_on_amd.status()}
@@ -253,7 +245,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
               "panel": [vars(h) for h in the_panel], "checkpoints": checkpoints,
               "time_shares": timer.shares(), "time_s": {k: round(v, 3) for k, v in timer.seconds.items()},
               "training_code_version": TRAINING_CODE_VERSION, "runtime": runtime,
-              "resumed_from_env_step": resumed_from}
+              "resumed_from_env_step": state.resumed_from}
     timing = ("time_shares", "time_s")  # wall clock: in the manifest's provenance, not in the hashed files
     with store.create("assistant-run", inputs=[*inputs, *(c["id"] for c in checkpoints)], config=config_record,
                       seed=seed, labels={**tags, "run_key": key}) as writer:
@@ -264,9 +256,7 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
         writer.add_json("unassisted.json", {"episodes": unassisted})
         writer.add_bytes("curve.jsonl", curve.jsonl_bytes())
     names = _aliases(bundle.track.name, pair, method.name, seed, final["id"], writer.artifact.id, move_aliases)
-    moved = store.point_aliases(names)
-    run.clear_state()
-    store.release_run(key)
+    moved = state.finish(names)
     return dict(result, run_id=writer.artifact.id, cached=False, aliases_moved=moved)
 
 

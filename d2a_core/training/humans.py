@@ -36,7 +36,7 @@ from d2a_core.agents.dreamer.config import DreamerConfig
 from d2a_core.artifacts import Artifact, Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.schema import Config
-from d2a_core.errors import NotFoundError, TrainingError, UsageError
+from d2a_core.errors import TrainingError, UsageError
 from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_value, meets_intent,
                                           performance_fractions)
 from d2a_core.evaluation.metrics import aggregate
@@ -50,7 +50,7 @@ from d2a_core.training.config import HumansConfig
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
-from d2a_core.training.run_state import RunDir, cached_result, load_checked, result_record, save_atomic
+from d2a_core.training.run_state import RunDir, RunProgress, cached_result, load_checked, result_record, save_atomic
 from d2a_core.training.torch_files import load_torch
 
 # config sections a population depends on (changing anything else does not retrain)
@@ -162,24 +162,16 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
 
     envs = [make_env() for _ in range(hc.num_envs)]
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, dreamer_cfg, seed=seed)
-    run_dir = run.path
-    env_steps, checkpoints, rows, resumed_from = 0, [], [], None
-    saved = run.load_state(device)
-    if saved is not None:
-        agent.load_state_dict(saved["agent"])
-        env_steps, checkpoints, rows = saved["env_steps"], saved["checkpoints"], saved["curve"]
-        try:  # the state's checkpoints must still exist (run holds keep them from gc)
-            store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
-        except NotFoundError as exc:
-            raise TrainingError(f"cannot resume {intent} from {run.state_path}: {exc}; {run.restart_hint}") from None
-        resumed_from = env_steps
+    state = RunProgress(store, run, [bundle.track_id, *bundle.replay_ids], hc.env_steps, hc.checkpoints)
+    state.resume(agent, device, intent)
+    env_steps = state.env_steps
     # resets after a resume use fresh seeds so the continued run does not replay old episodes
     collector = Collector(envs, agent, seed=seed * 1_000_003 + env_steps)
-    schedule = [round(hc.env_steps * (k + 1) / hc.checkpoints) for k in range(hc.checkpoints)]
-    pending = [s for s in schedule if s > env_steps]
-    snapshots = _Snapshots(run_dir / "snapshots", hc.snapshot_every, after=env_steps)
+    pending = state.pending()
+    snapshots = _Snapshots(run.path / "snapshots", hc.snapshot_every, after=env_steps)
     tags = {"track": bundle.track.name, "intent": intent}
-    curve = LiveCurve(store, f"humans/{bundle.track.name}/{intent}/seed{seed}-{key[:12]}", rows)
+    curve = LiveCurve(store, f"humans/{bundle.track.name}/{intent}/seed{seed}-{key[:12]}", state.curve_rows)
+    state.curve_rows = curve.rows
     recent: deque[dict[str, float]] = deque(maxlen=20)
     last_metrics: dict[str, float] = {}
     next_log = (env_steps // hc.log_every + 1) * hc.log_every
@@ -188,6 +180,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
         while pending:
             recent.extend(collector.step(explore=True, learn=True))
             env_steps += collector.n
+            state.env_steps = env_steps
             for _ in range(agent.updates_due(env_steps)):
                 last_metrics = agent.train_step()
             snapshots.maybe_save(agent, env_steps, checkpoint_now=env_steps >= pending[0])
@@ -207,21 +200,17 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
                           "recent_progress_m": float(np.mean([e["progress_m"] for e in recent])) if recent else None})
             if env_steps >= pending[0]:
                 pending.pop(0)
-                checkpoints.append(_store_checkpoint(store, agent, bundle, make_env, intent, env_steps, hc,
-                                                     config_record, seed, tags))
-                # hold before the state names the new checkpoint, so the holds always cover it
-                store.hold_run(key, [bundle.track_id, *bundle.replay_ids, *(c["id"] for c in checkpoints)])
-                run.save_state({"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True),
-                                "env_steps": env_steps, "checkpoints": checkpoints, "curve": curve.rows})
+                state.checkpointed(_store_checkpoint(store, agent, bundle, make_env, intent, env_steps, hc,
+                                                     config_record, seed, tags),
+                                   {"format": RUN_FORMAT, "agent": agent.state_dict(include_replay=True)})
     except TrainingError as exc:
-        last = f"; the last good checkpoint is {checkpoints[-1]['id'][:12]} at {checkpoints[-1]['env_step']} env steps" \
-            if checkpoints else ""
-        raise TrainingError(f"{intent} training stopped at env step {env_steps}: {exc}{last}") from None
+        raise state.stopped(exc, intent) from None
     finally:
         curve.close()
         for env in envs:
             env.close()
 
+    checkpoints = state.checkpoints
     expert = checkpoints[choose_expert(intent, checkpoints)]
     checkpoints = _fill_imperfect(store, agent, bundle, make_env, intent, hc, config_record, seed, tags,
                                   checkpoints, expert["id"], snapshots, key)
@@ -235,7 +224,7 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
               "expert": expert["id"], "expert_env_step": expert["env_step"],
               "expert_meets_intent": expert["meets_intent"], "expert_rule": EXPERT_RULE,
               "training_code_version": TRAINING_CODE_VERSION, "checkpoints": checkpoints, "runtime": runtime,
-              "resumed_from_env_step": resumed_from}
+              "resumed_from_env_step": state.resumed_from}
     with store.create("population", inputs=[c["id"] for c in checkpoints], config=config_record, seed=seed,
                       labels={**tags, "run_key": key}) as writer:
         writer.add_json("population.json", result_record(result))
@@ -243,11 +232,9 @@ def _run_population(store: Store, bundle: TrackBundle, intent: str, resolved: Re
         writer.add_bytes("curve.jsonl", curve.jsonl_bytes())
     population = writer.artifact
     names = _aliases(bundle.track.name, intent, population.id, expert["id"], move_aliases)
-    moved = store.point_aliases(names)
     # finished: the aliases now keep everything; the resumable state (with its replay) goes
-    run.clear_state()
+    moved = state.finish(names)
     snapshots.discard()
-    store.release_run(key)
     return dict(result, id=population.id, cached=False, aliases=names, aliases_moved=moved)
 
 

@@ -21,7 +21,7 @@ import torch
 
 from d2a_core.artifacts import Store
 from d2a_core.artifacts.fsutil import fsync_dir, os_reason
-from d2a_core.errors import D2AError, IntegrityError, StoreError
+from d2a_core.errors import D2AError, IntegrityError, NotFoundError, StoreError, TrainingError
 from d2a_core.training.torch_files import load_torch
 
 # A checked state file: this line, the sha256 of the rest, a newline, then the torch bytes.
@@ -150,3 +150,68 @@ def result_record(result: dict[str, Any], leave_out: tuple[str, ...] = ()) -> di
     uninterrupted run keeps the id it always had and a resumed one says that it resumed."""
     return {k: v for k, v in result.items()
             if k not in leave_out and not (k == "resumed_from_env_step" and v is None)}
+
+
+class RunProgress:
+    """Where a resumable training run stands, and what it does around its own loop: resume from
+    the saved state, hold what that state names, checkpoint, and finish. Populations and
+    assistants share it; each keeps its own loop and its own artifacts.
+
+    `inputs` are the artifacts the run reads: they and every checkpoint stored so far are held
+    against gc while the run lives and after it dies (run holds), so a saved state never names an
+    artifact that is gone. The checkpoint schedule is `count` evenly spaced env-step counts up to
+    `total`."""
+
+    def __init__(self, store: Store, run: RunDir, inputs: list[str], total: int, count: int) -> None:
+        self.store, self.run, self.inputs = store, run, list(inputs)
+        self.schedule = [round(total * (k + 1) / count) for k in range(count)]
+        self.env_steps = 0
+        self.checkpoints: list[dict[str, Any]] = []
+        self.curve_rows: list[dict[str, Any]] = []
+        self.resumed_from: Optional[int] = None
+
+    def resume(self, agent: Any, device: str, what: str) -> dict[str, Any]:
+        """Restore the saved state (if the run has one) into `agent` and this progress; returns
+        the whole saved state, or {} for a new run."""
+        saved = self.run.load_state(device)
+        if saved is None:
+            return {}
+        agent.load_state_dict(saved["agent"])
+        self.env_steps, self.checkpoints, self.curve_rows = saved["env_steps"], saved["checkpoints"], saved["curve"]
+        try:  # the state's checkpoints must still exist (run holds keep them from gc)
+            self.hold()
+        except NotFoundError as exc:
+            raise TrainingError(f"cannot resume {what} from {self.run.state_path}: {exc}; {self.run.restart_hint}") \
+                from None
+        self.resumed_from = self.env_steps
+        return saved
+
+    def hold(self) -> None:
+        """Hold the inputs and every checkpoint so far against gc."""
+        self.store.hold_run(self.run.key, [*self.inputs, *(c["id"] for c in self.checkpoints)])
+
+    def pending(self) -> list[int]:
+        """The checkpoints' env steps still ahead."""
+        return [s for s in self.schedule if s > self.env_steps]
+
+    def checkpointed(self, checkpoint: dict[str, Any], state: dict[str, Any]) -> None:
+        """A checkpoint was stored: hold it before the saved state names it, then save `state`
+        (the run's own fields) with the progress."""
+        self.checkpoints.append(checkpoint)
+        self.hold()
+        self.run.save_state({**state, "env_steps": self.env_steps, "checkpoints": self.checkpoints,
+                             "curve": self.curve_rows})
+
+    def stopped(self, exc: Exception, what: str) -> TrainingError:
+        """The error to raise when training fails: where it stopped and the last good checkpoint."""
+        last = (f"; the last good checkpoint is {self.checkpoints[-1]['id'][:12]} at "
+                f"{self.checkpoints[-1]['env_step']} env steps") if self.checkpoints else ""
+        return TrainingError(f"{what} training stopped at env step {self.env_steps}: {exc}{last}")
+
+    def finish(self, aliases: dict[str, str]) -> list[dict[str, str]]:
+        """The run's result is stored: point its aliases (which now keep everything), drop the
+        resumable state and the holds. Returns the aliases that moved."""
+        moved = self.store.point_aliases(aliases)
+        self.run.clear_state()
+        self.store.release_run(self.run.key)
+        return moved
