@@ -24,9 +24,9 @@ import numpy as np
 
 from d2a_core.artifacts import Store
 from d2a_core.errors import UsageError
+from d2a_core.pipelines.evaluate import ENV_SECTIONS
+from d2a_core.run_inputs import load_track_bundle, track_of
 from d2a_core.sim.shared_control import blend
-
-ENV_SECTIONS = ("env", "reward", "vehicle", "world")
 
 
 def _store(store: Store | str | Path | None) -> Store:
@@ -40,29 +40,17 @@ class _Stored:
 
     def __init__(self, store: Store, art) -> None:
         self.store, self.artifact, self.id = store, art, art.id
-        self._env = self.make_env()
-        self.observation_space = self._env.observation_space
-        self.action_space = self._env.action_space
+        probe = self.make_env()  # only for its spaces
+        self.observation_space, self.action_space = probe.observation_space, probe.action_space
+        probe.close()
 
     def make_env(self, intent: str | None = None):
         """A `d2a/Race-v0` env with the track, opponents and settings this artifact was trained with
         (`intent` sets the human objective whose reward the env reports)."""
         from d2a_core.config.schema import Config
-        from d2a_core.run_inputs import load_track_bundle
 
         cfg = Config.model_validate({k: self.artifact.config[k] for k in ENV_SECTIONS if k in self.artifact.config})
-        track_id = next(i for i in self._lineage_ids() if self.store.get(i).kind == "track")
-        return load_track_bundle(self.store, track_id, cfg.env.dt).env(cfg, intent)
-
-    def _lineage_ids(self) -> list[str]:
-        seen, order, stack = set(), [], [self.id]
-        while stack:
-            art_id = stack.pop(0)
-            if art_id not in seen:
-                seen.add(art_id)
-                order.append(art_id)
-                stack.extend(self.store.get(art_id).inputs)
-        return order
+        return load_track_bundle(self.store, track_of(self.store, self.id), cfg.env.dt).env(cfg, intent)
 
 
 class Driver(_Stored):

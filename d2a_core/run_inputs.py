@@ -38,6 +38,22 @@ class TrackBundle:
                        vehicle_config=cfg.vehicle, world_config=cfg.world)
 
 
+def track_of(store: Store, ref: str) -> str:
+    """The id of the track an artifact was made on: the `track` artifact in its lineage."""
+    seen: set[str] = set()
+    stack = [store.resolve(ref)]
+    while stack:
+        art_id = stack.pop()
+        if art_id in seen:
+            continue
+        seen.add(art_id)
+        art = store.get(art_id)
+        if art.kind == "track":
+            return art_id
+        stack.extend(art.inputs)
+    raise NotFoundError(f"{ref} was not made on a track in store {store.root}")
+
+
 def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
     """A track by id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
     try:

@@ -24,6 +24,7 @@ whatever happens to the bundle's other aliases.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -111,8 +112,6 @@ def _plain(info: tarfile.TarInfo) -> tarfile.TarInfo:
 
 
 def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> None:
-    import io
-
     info = _plain(tarfile.TarInfo(name))
     info.size = len(data)
     tar.addfile(info, io.BytesIO(data))

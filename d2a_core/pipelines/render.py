@@ -53,19 +53,11 @@ def _drive(assistant, driver, seed: int, log_dir: Path, name: str):
 
 
 def _track(store: Store, name: str | None, lineage_of: str | None = None):
-    from d2a_core.run_inputs import load_track_bundle
+    """The track geometry an episode was driven on: from an artifact's lineage, or by name."""
+    from d2a_core.run_inputs import load_track_bundle, track_of
 
     if lineage_of is not None:
-        seen, stack = set(), [store.resolve(lineage_of)]
-        while stack:
-            art_id = stack.pop()
-            if art_id in seen:
-                continue
-            seen.add(art_id)
-            art = store.get(art_id)
-            if art.kind == "track":
-                return load_track_bundle(store, art_id, 0.1).track
-            stack.extend(art.inputs)
+        name = track_of(store, lineage_of)
     if not name:
         raise UsageError("the episode log names no track; render it from a store that holds its track")
     return load_track_bundle(store, name, 0.1).track
