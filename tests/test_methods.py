@@ -96,27 +96,20 @@ def test_configure_uses_the_intent_scale_and_refuses_bad_pairs():
         get_method("dream2assist").configure(twice, PAIR)
 
 
-def test_intent_reads_reaches_the_head_only_when_set_and_only_for_a_dreamer_intent_head():
-    base = Config()
-    assert "reads" not in get_method("dream2assist").configure(base, PAIR).dreamer.extra_heads[0].options
-    wide = base.model_copy(update={"assistant": base.assistant.model_copy(update={"intent_reads": "latent+embedding"})})
-    assert get_method("dream2assist+a").configure(wide, PAIR).dreamer.extra_heads[0].options["reads"] == "latent+embedding"
-    for name in ("dreamer", "no-rssm"):
-        with pytest.raises(UsageError, match="intent_reads"):
-            get_method(name).configure(wide, PAIR)
-    # the partner window: the head reads the observation's last 2 K columns, the partner slot and window
-    window = base.model_copy(update={"assistant": base.assistant.model_copy(
-        update={"intent_reads": "partner_window", "partner_window": 16})})
-    options = get_method("dream2assist").configure(window, PAIR).dreamer.extra_heads[0].options
-    assert (options["reads"], options["tail"]) == ("observation_tail", 32)
+def test_the_intent_head_reads_the_model_state_only():
+    options = get_method("dream2assist").configure(Config(), PAIR).dreamer.extra_heads[0].options
+    assert options == {"field": "intent", "intents": list(PAIR)}
 
 
 def test_retired_assistant_and_population_settings_load_at_their_former_defaults_only():
-    """Stored records may carry `assistant.intent_lr: null` and `humans.train_start_spread: 0.0`
-    (settings retired after their experiments); any other value names the key."""
-    config = Config.model_validate({"assistant": {"intent_lr": None}, "humans": {"train_start_spread": 0.0}})
+    """Stored records may carry `assistant.intent_lr: null`, `assistant.intent_reads: latent` and
+    `humans.train_start_spread: 0.0` (settings retired after their experiments); any other value
+    names the key."""
+    config = Config.model_validate({"assistant": {"intent_lr": None, "intent_reads": "latent"},
+                                    "humans": {"train_start_spread": 0.0}})
     assert config == Config()
-    for section, key, value in (("assistant", "intent_lr", 1e-3), ("humans", "train_start_spread", 0.7)):
+    for section, key, value in (("assistant", "intent_lr", 1e-3), ("assistant", "intent_reads", "partner_window"),
+                                ("humans", "train_start_spread", 0.7)):
         with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
             Config.model_validate({section: {key: value}})
 

@@ -79,13 +79,6 @@ class AssistantConfig(Section):
         1, ge=1, le=64,
         description="the human's last K actions in the assistant's observation (1: the partner slot alone, the paper's)",
     )
-    intent_reads: Literal["latent", "latent+embedding", "partner_window"] = Field(
-        "latent",
-        description="what the intent head reads: the model state (the paper's p(y_hat | s)); the model state plus "
-                    "the encoder's embedding of the current observation; or only the human's actions in the "
-                    "observation (the partner slot and the partner_window - 1 before it), not the model state. "
-                    "The actor sees only the model state in every case",
-    )
 
     # The assistant's own DreamerV3 settings where they differ from the drivers' (`dreamer.*`, which
     # the populations share): a Dreamer-family method's learner takes these (`Method.configure`).
@@ -115,8 +108,9 @@ class AssistantConfig(Section):
                     "(sets dreamer.reward_relabel_head=intent; methods without both ignore it)",
     )
 
-    omit_at_default = {"partner_window": 1, "intent_reads": "latent", "train_ratio": None,
+    omit_at_default = {"partner_window": 1, "train_ratio": None,
                        "actor_grad": None, "imag_starts": None, "precision": None,
                        "reward_relabel": False}
-    # the intent head's own learning rate (an experiment that did not become a default)
-    retired = {"intent_lr": None}
+    # experiments that did not become defaults: the intent head's own learning rate, and what the
+    # head reads besides the model state (docs/experiments/intent-estimate.md)
+    retired = {"intent_lr": None, "intent_reads": "latent"}

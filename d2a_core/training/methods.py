@@ -105,8 +105,7 @@ class Method:
         set; for a Dreamer-family method, the assistant's own learner settings
         (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`,
         `assistant.precision`) in its `dreamer`
-        section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`, input
-        `assistant.intent_reads`) appended to
+        section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`) appended to
         `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
         is on and the reward has expert terms."""
         _require_implemented(self)
@@ -114,9 +113,6 @@ class Method:
             raise UsageError(f"method {self.name!r}: a pair needs at least two distinct intents, got {list(intents)}")
         assistant = config.assistant
         dreamer_head = self.intent_head and self.entry_point == DREAMER_AGENT
-        if assistant.intent_reads != assistant.omit_at_default["intent_reads"] and not dreamer_head:
-            raise UsageError(f"assistant.intent_reads={assistant.intent_reads!r} configures a Dreamer intent head; "
-                             f"method {self.name!r} has none")
         if config.dreamer.reward_relabel_head is not None:
             raise UsageError(f"dreamer.reward_relabel_head={config.dreamer.reward_relabel_head!r}: the method "
                              "sets it; use assistant.reward_relabel=true")
@@ -133,13 +129,6 @@ class Method:
             from d2a_core.agents.dreamer.config import HeadConfig  # pydantic only, no torch
 
             options: dict[str, Any] = {"field": INTENT_HEAD_NAME, "intents": list(intents)}
-            if assistant.intent_reads == "partner_window":
-                from d2a_core.training.partner_window import PARTNER_SLOT  # numpy and gymnasium, no torch
-
-                # The assistant's observation ends with the partner slot and the window after it.
-                options.update(reads="observation_tail", tail=PARTNER_SLOT * assistant.partner_window)
-            elif assistant.intent_reads != "latent":  # named only when set, so older runs keep their keys
-                options["reads"] = assistant.intent_reads
             head = HeadConfig(name=INTENT_HEAD_NAME, kind="intent", weight=assistant.intent_scale, options=options)
             learner["extra_heads"] = [*heads, head]
         if learner:

@@ -74,10 +74,7 @@ class EpisodeSpec:
 def _rows(state: PolicyState, index: torch.Tensor) -> PolicyState:
     latent = state.latent
     probs = None if latent.probs is None else latent.probs[index]
-    embedding = None if state.embedding is None else state.embedding[index]
-    observation = None if state.observation is None else state.observation[index]
-    return PolicyState(Latent(latent.h[index], latent.index[index], probs), state.action[index], embedding,
-                       observation)
+    return PolicyState(Latent(latent.h[index], latent.index[index], probs), state.action[index])
 
 
 def _put_rows(state: PolicyState, index: torch.Tensor, rows: PolicyState) -> None:
@@ -86,10 +83,6 @@ def _put_rows(state: PolicyState, index: torch.Tensor, rows: PolicyState) -> Non
     if state.latent.probs is not None and rows.latent.probs is not None:
         state.latent.probs[index] = rows.latent.probs.to(state.latent.probs.dtype)
     state.action[index] = rows.action
-    if state.embedding is not None and rows.embedding is not None:
-        state.embedding[index] = rows.embedding
-    if state.observation is not None and rows.observation is not None:
-        state.observation[index] = rows.observation
 
 
 class HumanDrivers:

@@ -32,7 +32,6 @@ from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .behavior import Behavior
 from .config import DreamerConfig
-from .heads import EMBEDDING_FIELD
 from .latent import Latent
 from .replay import SequenceReplay
 from .world_model import WorldModel
@@ -48,10 +47,6 @@ class PolicyState:
 
     latent: Latent
     action: Tensor
-    # the encoder's embedding of the last observation, and that observation, each kept only when
-    # a head reads it
-    embedding: Tensor | None = None
-    observation: Tensor | None = None
 
 
 class DreamerAgent:
@@ -183,9 +178,7 @@ class DreamerAgent:
                 action, _ = actor.sample(feat, noise)
             else:
                 action = actor.mode(feat)
-        kept = embedding.float() if self.world_model.heads_read_embedding else None
-        kept_obs = obs if self.world_model.heads_read_observation else None
-        new_state = PolicyState(feat, action.float(), kept, kept_obs)
+        new_state = PolicyState(feat, action.float())
         return self._to_env_action(new_state.action), new_state
 
     @torch.no_grad()
@@ -195,7 +188,7 @@ class DreamerAgent:
         heads = self.world_model.extra_heads
         if "intent" not in heads:
             return None
-        return heads["intent"].predict(state.latent, state.embedding, state.observation).float().cpu().numpy()
+        return heads["intent"].predict(state.latent).float().cpu().numpy()
 
     def features(self, state: PolicyState) -> np.ndarray:
         """The model state's deterministic part h (N, deter): what the report's t-SNE of
@@ -205,7 +198,7 @@ class DreamerAgent:
     def with_action(self, state: PolicyState, env_actions: np.ndarray) -> PolicyState:
         """The same state with another action taken (e.g. a blended human+assistant action), so
         that the next `policy` call conditions on what was really executed."""
-        return PolicyState(state.latent, self._to_internal_action(env_actions), state.embedding, state.observation)
+        return PolicyState(state.latent, self._to_internal_action(env_actions))
 
     @torch.no_grad()
     def predict(self, state: PolicyState) -> dict[str, Tensor]:
@@ -213,7 +206,7 @@ class DreamerAgent:
         extra head (e.g. an intent classifier's probabilities)."""
         latent = state.latent
         out = {"reward": self.world_model.reward(latent), "continue": self.world_model.continue_prob(latent)}
-        out.update(self.world_model.predict_extra(latent, state.embedding, state.observation))
+        out.update(self.world_model.predict_extra(latent))
         return out
 
     # --- data
@@ -224,8 +217,6 @@ class DreamerAgent:
         missing = [key for key in (*_CORE_FIELDS, "action") if key not in transition]
         if missing:
             raise UsageError(f"observe: transition lacks fields {missing}")
-        if EMBEDDING_FIELD in transition:
-            raise UsageError(f"observe: {EMBEDDING_FIELD!r} is reserved for the world model's own embeddings")
         n = np.asarray(transition["obs"]).shape[0]
         step: dict[str, np.ndarray] = {
             "obs": np.asarray(transition["obs"], np.float32).reshape(n, self.obs_size),

@@ -13,7 +13,7 @@ on a field of the replayed batch. To add one without touching the world model:
             self.net = latent_mlp(config, out_size=...)
         def loss(self, latent, batch):        # -> per-step loss (B, T)
             ...
-        def predict(self, latent, embedding=None, observation=None):  # -> what callers need at run time
+        def predict(self, latent):             # -> what callers need at run time
             ...
 
 then list it in the config: `DreamerConfig(extra_heads=[HeadConfig(name="intent",
@@ -37,15 +37,9 @@ from d2a_core.errors import ConfigError, TrainingError
 from .config import DreamerConfig, HeadConfig
 from .distributions import TwoHot
 from .latent import Latent, LatentMLP
-from .nets import MLP
 
 HEAD_KINDS: dict[str, type[WorldModelHead]] = {}
 """Registered head kinds by name."""
-
-
-EMBEDDING_FIELD = "embedding"
-"""Batch key under which the world model hands its observation embeddings (B, T, units) to the
-heads whose `reads_embedding` is set (a reserved name: no replay field may use it)."""
 
 
 class WorldModelHead(nn.Module, ABC):
@@ -53,12 +47,6 @@ class WorldModelHead(nn.Module, ABC):
 
     #: batch fields the loss reads (checked when a batch lacks them)
     fields: tuple[str, ...] = ()
-    #: whether the head also reads the encoder's embedding of the current observation: then its
-    #: loss finds it in the batch under EMBEDDING_FIELD and `predict` gets it as `embedding`
-    reads_embedding: bool = False
-    #: whether the head reads the raw current observation: then its loss finds it in the batch
-    #: under "obs" and `predict` gets it as `observation`
-    reads_observation: bool = False
 
     def __init__(self, config: DreamerConfig) -> None:
         super().__init__()
@@ -68,9 +56,8 @@ class WorldModelHead(nn.Module, ABC):
         """Per-step loss (B, T) for states of leading shape (B, T) and the batch's fields (B, T, ...)."""
 
     @abstractmethod
-    def predict(self, latent: Latent, embedding: Tensor | None = None, observation: Tensor | None = None) -> Tensor:
-        """Run-time prediction for states of any leading shape (and, for a head that reads them,
-        the embedding of the observation the state was inferred from, or that observation)."""
+    def predict(self, latent: Latent) -> Tensor:
+        """Run-time prediction for states of any leading shape."""
 
     def loss_and_metrics(self, latent: Latent, batch: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         """The per-step loss and scalar metrics (logged as `wm/<head name>_<key>`, e.g. an
@@ -113,58 +100,19 @@ def build_head(spec: HeadConfig, config: DreamerConfig) -> WorldModelHead:
         raise ConfigError(f"extra_heads: head {spec.name!r} ({spec.kind}): bad options {spec.options}: {error}") from error
 
 
-CATEGORICAL_READS = ("latent", "latent+embedding", "observation_tail")
-"""What a categorical head may read: the model state, the state plus the encoder's embedding of
-the current observation, or the raw observation's last columns alone."""
-
-
 @register_head("categorical")
 class CategoricalHead(WorldModelHead):
     """Classifier p(y | s) trained by negative log-likelihood on an integer label field.
     Labels < 0 mean 'unknown' and are left out of the loss (partial labelling)."""
 
-    def __init__(self, config: DreamerConfig, field: str = "label", classes: int = 2, reads: str = "latent",
-                 tail: int = 0) -> None:
+    def __init__(self, config: DreamerConfig, field: str = "label", classes: int = 2) -> None:
         super().__init__(config)
         if classes < 2:
             raise TypeError("classes must be at least 2")
-        if reads not in CATEGORICAL_READS:
-            raise TypeError(f"reads must be one of {list(CATEGORICAL_READS)}, got {reads!r}")
-        if (reads == "observation_tail") != (tail > 0):
-            raise TypeError(f"tail (> 0 columns) goes with reads='observation_tail' and only with it, got "
-                            f"reads={reads!r}, tail={tail!r}")
         self.field = field
         self.fields = (field,)
         self.classes = classes
-        self.tail = tail
-        self.reads_embedding = reads == "latent+embedding"
-        self.reads_observation = reads == "observation_tail"
-        if self.reads_observation:
-            # A classifier on the observation's last `tail` columns alone (e.g. the window of the
-            # partner's actions): what the car's state shows, which the assistant's own actions
-            # shape, cannot sway it.
-            self.net = MLP(tail, config.units, config.layers, config.norm_eps, out_size=classes)
-        else:
-            self.net = latent_mlp(config, classes)
-        # The embedding enters the MLP's first layer beside (h, z): a direct path from what the
-        # encoder sees now (e.g. a window of the partner's actions) that the stochastic state
-        # need not carry.
-        self.embedding_in = nn.Linear(config.units, config.units, bias=False) if self.reads_embedding else None
-
-    def _logits(self, latent: Latent, embedding: Tensor | None, observation: Tensor | None) -> Tensor:
-        if self.reads_observation:
-            if observation is None:
-                raise TrainingError(f"head on field {self.field!r} reads the observation; none was given")
-            if observation.shape[-1] < self.tail:
-                raise TrainingError(f"head on field {self.field!r} reads the last {self.tail} observation "
-                                    f"columns; the observation has {observation.shape[-1]}")
-            return self.net(observation[..., -self.tail:].to(self.net.first.linear.weight.dtype))
-        if self.embedding_in is None:
-            return self.net(latent)
-        if embedding is None:
-            raise TrainingError(f"head on field {self.field!r} reads the observation embedding; none was given")
-        pre = self.net.first(latent.h, latent.index, latent.probs)
-        return self.net.finish(pre + self.embedding_in(embedding.to(pre.dtype)))
+        self.net = latent_mlp(config, classes)
 
     def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
         return self.loss_and_metrics(latent, batch)[0]
@@ -175,7 +123,7 @@ class CategoricalHead(WorldModelHead):
         if bool((label >= self.classes).any()):
             raise TrainingError(f"head field {self.field!r} has a label >= its {self.classes} classes")
         known = label >= 0
-        logits = self._logits(latent, batch.get(EMBEDDING_FIELD), batch.get("obs"))
+        logits = self.net(latent)
         log_probs = torch.log_softmax(logits.float(), -1)
         nll = -log_probs.gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
         with torch.no_grad():
@@ -183,9 +131,9 @@ class CategoricalHead(WorldModelHead):
             accuracy = correct.float().sum() / known.float().sum().clamp(min=1.0)
         return torch.where(known, nll, torch.zeros_like(nll)), {"accuracy": accuracy}
 
-    def predict(self, latent: Latent, embedding: Tensor | None = None, observation: Tensor | None = None) -> Tensor:
+    def predict(self, latent: Latent) -> Tensor:
         """Class probabilities (..., classes)."""
-        return torch.softmax(self._logits(latent, embedding, observation).float(), -1)
+        return torch.softmax(self.net(latent).float(), -1)
 
 
 @register_head("intent")
@@ -197,17 +145,15 @@ class IntentHead(CategoricalHead):
     The paper predicts the symlog two-hot code of the integer label; a categorical over the
     pair's intents is the same prediction without an ordering between intents that do not have
     one, and its probabilities are the classifier's output that F1 and y_hat read directly.
-    `predict` gives the probabilities (..., len(intents)); y_hat is their argmax. `reads`:
-    "latent" (the paper's p(y_hat | s)), "latent+embedding" (also the encoder's embedding of
-    the current observation) or "observation_tail" (only the observation's last `tail` columns,
-    not the model state), see `CategoricalHead`."""
+    `predict` gives the probabilities (..., len(intents)); y_hat is their argmax. It reads the
+    model state, as the paper's p(y_hat | s) does (what else it could read, and why it does not:
+    docs/experiments/intent-estimate.md)."""
 
-    def __init__(self, config: DreamerConfig, intents: Sequence[str], field: str = "intent",
-                 reads: str = "latent", tail: int = 0) -> None:
+    def __init__(self, config: DreamerConfig, intents: Sequence[str], field: str = "intent") -> None:
         intents = tuple(intents)
         if len(intents) < 2 or len(set(intents)) != len(intents) or not all(isinstance(i, str) for i in intents):
             raise TypeError(f"intents must be at least two distinct names, got {list(intents)}")
-        super().__init__(config, field=field, classes=len(intents), reads=reads, tail=tail)
+        super().__init__(config, field=field, classes=len(intents))
         self.intents = intents
 
 
@@ -230,6 +176,6 @@ class TwoHotHead(WorldModelHead):
     def loss(self, latent: Latent, batch: Mapping[str, Tensor]) -> Tensor:
         return self.twohot.loss(self.net(latent), batch[self.field].float())
 
-    def predict(self, latent: Latent, embedding: Tensor | None = None, observation: Tensor | None = None) -> Tensor:
+    def predict(self, latent: Latent) -> Tensor:
         """Predicted value (...)."""
         return self.twohot.mean(self.net(latent))

@@ -14,7 +14,7 @@ from d2a_core.errors import ConfigError, TrainingError
 
 from .config import DreamerConfig
 from .distributions import TwoHot, categorical_kl, symlog, unimix_probs
-from .heads import EMBEDDING_FIELD, WorldModelHead, build_head, latent_mlp
+from .heads import WorldModelHead, build_head, latent_mlp
 from .latent import Latent, first_layers
 from .nets import MLP
 from .rssm import RSSM, Observed
@@ -75,10 +75,6 @@ class WorldModel(nn.Module):
         self.continue_head = latent_mlp(c, 1)
         self.extra_heads = nn.ModuleDict({spec.name: build_head(spec, c) for spec in c.extra_heads})
         self.head_weights = {spec.name: spec.weight for spec in c.extra_heads}
-        # fixed at construction: whether acting keeps, and the loss hands out, the embedding; whether
-        # acting keeps the raw observation (the loss's batch has it)
-        self.heads_read_embedding = any(head.reads_embedding for head in self.extra_heads.values())
-        self.heads_read_observation = any(head.reads_observation for head in self.extra_heads.values())
         self.twohot = TwoHot(c.bins, c.bin_range)
         if c.reward_relabel_head is not None and c.reward_relabel_head not in self.extra_heads:
             raise ConfigError(f"reward_relabel_head {c.reward_relabel_head!r} is not one of the extra heads "
@@ -101,11 +97,9 @@ class WorldModel(nn.Module):
         """Predicted probability that the episode continues after state `latent`."""
         return torch.sigmoid(self.continue_head(latent).squeeze(-1).float())
 
-    def predict_extra(self, latent: Latent, embedding: Tensor | None = None,
-                      observation: Tensor | None = None) -> dict[str, Tensor]:
-        """Run-time predictions of every extra head (`embedding`, `observation`: of the
-        observation `latent` was inferred from, and that observation, for the heads that read them)."""
-        return {name: head.predict(latent, embedding, observation) for name, head in self.extra_heads.items()}
+    def predict_extra(self, latent: Latent) -> dict[str, Tensor]:
+        """Run-time predictions of every extra head."""
+        return {name: head.predict(latent) for name, head in self.extra_heads.items()}
 
     def loss(self, batch: Mapping[str, Tensor], generator: torch.Generator | None) -> WorldModelOutput:
         """World-model loss of a batch of sequences (B, T, ...): obs, action (taken at each
@@ -122,7 +116,7 @@ class WorldModel(nn.Module):
 
         decoder_loss = (self.decoder.finish(decoder_pre).float() - symlog(obs)).square().sum(-1)
         reward_logits = self.reward_head.finish(reward_pre)
-        reward_target, relabel_metrics = self._reward_target(latent, embedding, batch)
+        reward_target, relabel_metrics = self._reward_target(latent, batch)
         reward_loss = self.twohot.loss(reward_logits, reward_target)
         continue_target = 1.0 - batch["is_terminal"].float()
         continue_logits = self.continue_head.finish(continue_pre).squeeze(-1).float()
@@ -149,9 +143,8 @@ class WorldModel(nn.Module):
             **self._terminal_fit(reward_logits, continue_logits, reward_target, batch),
             **relabel_metrics,
         }
-        head_batch = {**batch, EMBEDDING_FIELD: embedding} if self.heads_read_embedding else batch
         for name, head in self.extra_heads.items():
-            head_loss, head_metrics = self._head_loss(name, head, latent, head_batch)
+            head_loss, head_metrics = self._head_loss(name, head, latent, batch)
             per_step = per_step + self.head_weights[name] * head_loss
             metrics[f"wm/{name}_loss"] = head_loss.mean()
             metrics.update({f"wm/{name}_{key}": value for key, value in head_metrics.items()})
@@ -161,7 +154,7 @@ class WorldModel(nn.Module):
             loss=loss, metrics={k: v.detach() for k, v in metrics.items()}, observed=observed
         )
 
-    def _reward_target(self, latent: Latent, embedding: Tensor, batch: Mapping[str, Tensor]
+    def _reward_target(self, latent: Latent, batch: Mapping[str, Tensor]
                        ) -> tuple[Tensor, dict[str, Tensor]]:
         """The reward head's target: the stored reward, or (with `reward_relabel_head`) the reward
         under the class that head picks now from each step's previous posterior state, and the mean
@@ -173,7 +166,7 @@ class WorldModel(nn.Module):
             raise TrainingError(f"reward_relabel_head is set but the replay has no {REWARD_BY_CLASS_FIELD!r} field")
         with torch.no_grad():
             head = self.extra_heads[name]
-            probs = head.predict(latent.detach(), embedding.detach(), batch["obs"])
+            probs = head.predict(latent.detach())
             target = relabeled_reward(batch["reward"], batch[REWARD_BY_CLASS_FIELD], probs.argmax(-1))
             change = (target - batch["reward"]).abs().mean()
         return target, {"wm/reward_relabel_change": change}
