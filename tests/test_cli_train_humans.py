@@ -12,6 +12,7 @@ import pytest
 
 from d2a_core import config as config_mod
 from d2a_core.artifacts import Store
+from d2a_core.config.schema import Config
 from d2a_core.evaluation.criteria import EXPERT_RULE, choose_expert, meets_intent
 from d2a_core.training import humans as humans_mod
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
@@ -288,13 +289,13 @@ def test_a_side_population_leaves_the_intents_aliases_and_survives_gc(cli, fresh
 
 
 def test_the_drivers_own_keys_override_the_shared_dreamer_settings():
-    """`humans.model_lr` and `humans.terminal_weight` reach the drivers' DreamerV3 config; unset,
-    the drivers take `dreamer.*` like the assistant."""
-    plain = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4", "dreamer.terminal_weight=3"]).config
-    own = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4", "dreamer.terminal_weight=3",
-                                              "humans.model_lr=5e-4", "humans.terminal_weight=10"]).config
-    assert (humans_mod.driver_dreamer_config(plain).model_lr, humans_mod.driver_dreamer_config(plain).terminal_weight) \
-        == (2e-4, 3.0)
-    mine = humans_mod.driver_dreamer_config(own)
-    assert (mine.model_lr, mine.terminal_weight) == (5e-4, 10.0)
-    assert own.dreamer.terminal_weight == 3.0  # the shared section, which the assistant reads, is untouched
+    """`humans.model_lr` reaches the drivers' DreamerV3 config; unset, the drivers take
+    `dreamer.model_lr` like the assistant. The retired `humans.terminal_weight` loads only unset."""
+    plain = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4"]).config
+    own = config_mod.load("smoke", overrides=["dreamer.model_lr=2e-4", "humans.model_lr=5e-4"]).config
+    assert humans_mod.driver_dreamer_config(plain).model_lr == 2e-4
+    assert humans_mod.driver_dreamer_config(own).model_lr == 5e-4
+    assert own.dreamer.model_lr == 2e-4  # the shared section, which the assistant reads, is untouched
+    assert Config.model_validate({"humans": {"terminal_weight": None}}) == Config()
+    with pytest.raises(ValueError, match="'terminal_weight' is a retired setting"):
+        Config.model_validate({"humans": {"terminal_weight": 20.0}})

@@ -42,18 +42,14 @@ class HumansConfig(Section):
         None, gt=0,
         description="world-model learning rate of the drivers (unset: dreamer.model_lr); the assistant keeps dreamer.model_lr",
     )
-    terminal_weight: float | None = Field(
-        None, ge=0,
-        description="scale of the drivers' reward and continue losses at episode ends (unset: dreamer.terminal_weight); "
-                    "the assistant keeps dreamer.terminal_weight",
-    )
     eval_logs: int = Field(
         0, ge=0,
         description="evaluation episodes of each checkpoint kept as MCAP episode logs (episodes/*.mcap), to see where it fails",
     )
-    omit_at_default = {"eval_logs": 0, "terminal_weight": None}
-    # training starts spread along the race (a hairpin experiment that did not become a default)
-    retired = {"train_start_spread": 0.0}
+    omit_at_default = {"eval_logs": 0}
+    # experiments that did not become defaults: training starts spread along the race (hairpin), and
+    # the drivers' own terminal weight (docs/experiments/crash-blind-world-model.md, "In the loop")
+    retired = {"train_start_spread": 0.0, "terminal_weight": None}
 
 
 class AssistantConfig(Section):

@@ -124,7 +124,7 @@ def driver_dreamer_config(cfg: Config, device: str = "cpu") -> DreamerConfig:
     # (docs/experiments/crash-blind-world-model.md, "Why left fails"); the drivers may learn faster
     # than the assistant, which shares `dreamer`.
     hc = cfg.humans
-    own = {"model_lr": hc.model_lr, "terminal_weight": hc.terminal_weight}
+    own = {"model_lr": hc.model_lr}
     return cfg.dreamer.model_copy(update={"device": device, **{k: v for k, v in own.items() if v is not None}})
 
 
