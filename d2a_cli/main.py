@@ -13,7 +13,7 @@ from typing import Optional
 import typer
 
 from d2a_cli import (artifacts_cmd, config_cmd, drive_cmd, eval_cmd, intent_swap_cmd, make_track_cmd, render_cmd,
-                     report_cmd, reproduce_cmd, train_assistant_cmd, train_humans_cmd)
+                     report_cmd, reproduce_cmd, study_cmd, train_assistant_cmd, train_humans_cmd)
 from d2a_cli.common import DeviceOpt, JsonOpt, SeedOpt, StoreOpt, apply_options, current, report_error, wants_json
 from d2a_core import mkl_on_amd
 from d2a_core.errors import D2AError
@@ -36,6 +36,7 @@ app.command("report")(report_cmd.report)
 app.command("reproduce")(reproduce_cmd.reproduce)
 app.command("render")(render_cmd.render)
 app.command("drive")(drive_cmd.drive)
+app.command("study")(study_cmd.study)
 app.add_typer(artifacts_cmd.app, name="artifacts")
 app.add_typer(config_cmd.app, name="config")
 

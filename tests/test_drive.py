@@ -151,3 +151,41 @@ def test_a_drive_with_an_assistant_blends_its_action_and_logs_its_estimate(cli, 
     res = cli("drive", "--intent", "left", "--assistant", assistant, "--script", str(script), "--json",
               store=store_dir, env=OFFSCREEN)
     assert res.code == 2 and "not one of the assistant's pair" in res.json["error"]["message"]
+
+
+def test_a_study_asks_drives_pairs_and_reaches_the_report(cli, tmp_path, trained_assistants):
+    """Two scripted trials on the same start, alone and with the assistant, the intent asked before
+    each and checked after: two drives, a study whose table pairs them, and a report section."""
+    store_dir, trained = trained_assistants
+    store_dir = copy_store(store_dir, tmp_path)
+    assistant = next(a for a in trained["assistants"] if a["method"] == "dream2assist")["id"]
+    _stay_script(tmp_path / "stay.yaml", seconds=6.0)
+    protocol = tmp_path / "study.yaml"
+    protocol.write_text(yaml.safe_dump({"assistant": assistant, "seconds": 6, "trials": [
+        {"intent": "ask", "assisted": False, "seed": 3, "script": "stay.yaml", "answers": ["s", "y"]},
+        {"intent": "ask", "assisted": True, "seed": 3, "script": "stay.yaml", "answers": ["s", "n"]}]}))
+    res = cli("study", "--protocol", str(protocol), "--participant", "p07", "--json", store=store_dir, env=OFFSCREEN)
+    assert res.code == 0, res.stderr
+    study = res.json
+    assert [t["intent"] for t in study["trials"]] == ["stay", "stay"]
+    assert [t["self_report"] for t in study["trials"]] == [True, False]
+    assert [t["assisted"] for t in study["trials"]] == [False, True]
+    store = Store(store_dir)
+    drives = [store.get(t["drive"]) for t in study["trials"]]
+    assert [d.labels["participant"] for d in drives] == ["p07", "p07"] and drives[1].inputs[1] == assistant
+    assert store.get(study["id"]).inputs == [d.id for d in drives]
+    (paired,) = study["table"]["paired"]
+    change = study["trials"][1]["progress_m"] - study["trials"][0]["progress_m"]
+    assert paired["pairs"] == 1 and paired["progress_change_m"] == pytest.approx(change)
+
+    report = cli("report", "--out", str(tmp_path / "report"), "--json", store=store_dir)
+    assert report.code == 0, report.stderr
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert "Participant p07" in text and study["id"] in report.json["inputs"]
+
+    protocol.write_text(yaml.safe_dump({"trials": [{"intent": "ask", "assisted": True}]}))
+    res = cli("study", "--protocol", str(protocol), "--participant", "p07", "--json", store=store_dir, env=OFFSCREEN)
+    assert res.code == 2 and "field 'assistant' is needed" in res.json["error"]["message"]
+    protocol.write_text(yaml.safe_dump({"trials": [{"intent": "ask", "assisted": False, "sead": 1}]}))
+    res = cli("study", "--protocol", str(protocol), "--participant", "p07", "--json", store=store_dir, env=OFFSCREEN)
+    assert res.code == 2 and "trials.0.sead" in res.json["error"]["message"] and str(protocol) in res.json["error"]["message"]

@@ -45,6 +45,9 @@ class DriveSpec:
     participant: str | None = None
     trial: str | None = None
     max_seconds: float | None = None
+    # an artifact whose env settings a drive without an assistant takes (a study's assistant), so
+    # that both halves of a pair drive the same env
+    env_of: str | None = None
 
 
 def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
@@ -72,6 +75,11 @@ def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
     if spec.track is None:
         raise UsageError("--track is needed to drive without an assistant")
     track_id = store.resolve(_track_ref(store, spec.track))
+    if spec.env_of is not None:
+        from d2a_core.config.schema import Config
+
+        stored = store.get(spec.env_of).config
+        config = Config.model_validate({k: stored[k] for k in ENV_SECTIONS if k in stored})
     env = load_track_bundle(store, track_id, config.env.dt).env(config, spec.intent)
     record = {k: getattr(config, k).model_dump(mode="json") for k in ENV_SECTIONS}
     return env, record, track_id, None
@@ -98,23 +106,32 @@ def _with_intents(states: dict[str, dict], stated: str, belief: dict[str, float]
 
 def drive(store: Store, spec: DriveSpec, config: Any, script: list[KeyEvent] | None = None,
           realtime: bool = True, screenshot: Path | None = None, device: str = "cpu",
-          window_factory=None) -> dict[str, Any]:
+          window=None) -> dict[str, Any]:
     """Run one drive through the window and store it. Returns the stored drive's summary with its
     `id`. `config`: the resolved `Config` (its env sections drive a run without an assistant);
-    `window_factory(track, controls, script)`: the window (default `window.DriveWindow`)."""
+    `window`: an open `window.DriveWindow` to drive in (a study's, left open), else one is opened
+    for this drive and closed after it."""
     from d2a_core.evaluation.criteria import meets_intent
     from d2a_core.evaluation.metrics import episode_metrics
     from d2a_core.sim.episode_log import EpisodeRecorder
     from d2a_core.sim.recording import scene_of, step_record
     from d2a_core.sim.shared_control import blend
 
-    if window_factory is None:
-        from d2a_core.drive.window import DriveWindow as window_factory
+    from d2a_core.drive.window import DriveWindow
+
     env, record, track_id, assistant = _env_and_assistant(store, spec, config, device)
     race = env.unwrapped
     dt = race.cfg.dt
     controls = Controls()
-    window = window_factory(race.track, controls, script or ())
+    own_window = window is None
+    try:
+        if own_window:
+            window = DriveWindow(race.track, controls, script or ())
+        else:
+            window.start(race.track, controls, script or ())
+    except BaseException:
+        env.close()
+        raise
     infos: list[dict[str, Any]] = []
     rewards: list[float] = []
     read_as_stated: list[bool] = []
@@ -202,5 +219,6 @@ def drive(store: Store, spec: DriveSpec, config: Any, script: list[KeyEvent] | N
                 writer.note("wall_s", round(time.monotonic() - started, 3))
             return {"id": writer.artifact.id, **summary}
     finally:
-        window.close()
+        if own_window:
+            window.close()
         env.close()

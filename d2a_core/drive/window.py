@@ -63,12 +63,23 @@ class DriveWindow:
         pg.display.set_caption(title)
         self.font = pg.font.Font(None, 24)
         self.small = pg.font.Font(None, 20)
-        self.controls, self.size, self.scale = controls, size, px_per_m
+        self.size, self.scale = size, px_per_m
+        self.answers: list[str] = []  # scripted answers to `ask`, in order
+        self._open_joystick()
+        self.start(track, controls, script)
+
+    def start(self, track, controls: Controls, script: Sequence[KeyEvent] = ()) -> None:
+        """Begin a drive on `track` with fresh `controls` and its own key script."""
+        self.controls = controls
         self.script = list(script)
+        self.pygame.event.clear()
         left, right = track.edges()
         self.left, self.right = left[:, :2], right[:, :2]
         finish = np.asarray(track.finish_line_points(), float)
         self.finish = finish[:, :2] if finish.ndim == 2 and len(finish) >= 2 else None
+
+    def _open_joystick(self) -> None:
+        pg = self.pygame
         self.joystick = None
         pg.joystick.init()
         if pg.joystick.get_count() > 0:
@@ -167,6 +178,29 @@ class DriveWindow:
                 self._bar(12, y, label, float(value), colour, signed=True)
                 y += 20
         pg.display.flip()
+
+    def ask(self, question: str, options: Mapping[str, str]) -> str:
+        """Show `question` and wait for one of the `options` keys; returns its value. Escape or
+        closing the window stops (UsageError). A scripted answer, when queued, is posted as its key."""
+        pg = self.pygame
+        pg.event.clear()
+        if self.answers:
+            pg.event.post(pg.event.Event(pg.KEYDOWN, key=pg.key.key_code(self.answers.pop(0))))
+        self.screen.fill(COLOURS["background"])
+        for i, line in enumerate([question, "   ".join(f"[{k.upper()}] {v}" for k, v in options.items())]):
+            text = self.font.render(line, True, COLOURS["text"])
+            self.screen.blit(text, (self.size[0] // 2 - text.get_width() // 2, self.size[1] // 2 - 30 + 34 * i))
+        pg.display.flip()
+        while True:
+            event = pg.event.wait(100)
+            if event.type == pg.QUIT:
+                raise UsageError("the window was closed; the study stopped")
+            if event.type == pg.KEYDOWN:
+                key = pg.key.name(event.key)
+                if key == "escape":
+                    raise UsageError("Escape pressed; the study stopped")
+                if key in options:
+                    return options[key]
 
     def screenshot(self, path: Path) -> None:
         """The last frame as a PNG."""

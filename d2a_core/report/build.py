@@ -21,6 +21,7 @@ from d2a_core.errors import UsageError
 from d2a_core.report import render
 from d2a_core.report.collect import Collected, collect, nothing_to_report
 from d2a_core.report.figures import make_figures
+from d2a_core.report.studies import collect_studies
 from d2a_core.report.stats import BOOTSTRAP_METHOD, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, CONFIDENCE, MIN_SEEDS
 from d2a_core.report.tables import build_tables
 
@@ -57,9 +58,12 @@ def build_report(store: Store, tracks: Sequence[str] | None = None, pairs: Seque
         raise nothing_to_report(store, tracks, pairs)
     with store.lease():
         data = collect(store, tracks, pairs)
-        if data.empty():
+        studies = collect_studies(store)
+        if data.empty() and not studies:
             raise nothing_to_report(store, tracks, pairs)
         tables = build_tables(data, tracks, pairs)
+        tables["studies"] = studies
+        data.used.update(study["id"] for study in tables["studies"])
         figures = make_figures(data)
         inputs = sorted(data.used)
         doc = {"summary": _summary(data, tracks, pairs), "tables": tables, "skipped": figures.skipped,

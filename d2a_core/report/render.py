@@ -247,7 +247,15 @@ def document(doc: dict[str, Any], plots: Sequence[Plot]) -> list[Block]:
         blocks.append(Block("figure", plot=plot))
     for kind, why in doc["skipped"].items():
         blocks.append(Block("p", f"Figure kind `{kind}` not drawn: {why}."))
-    blocks.append(Block("h2", "5. Artifacts used"))
+    if tables.get("studies"):
+        from d2a_core.report.studies import study_blocks
+
+        blocks.append(Block("h2", "5. Studies with people (`d2a study`)"))
+        blocks.append(Block("p", "Each participant's trials alone and with the assistant: the rate that met the stated "
+                                 "intent by the evaluation's criterion, the rate they said they did, and the paired "
+                                 "change over starts driven both ways."))
+        blocks += study_blocks(tables["studies"])
+    blocks.append(Block("h2", f"{6 if tables.get('studies') else 5}. Artifacts used"))
     blocks.append(Block("p", "The report artifact's inputs: exactly these."))
     blocks.append(Block("table", table=Table(["id", "kind", "aliases"], [
         [Cell([f"`{a['id']}`"]), Cell([a["kind"]]), Cell([", ".join(f"`{x}`" for x in a["aliases"]) or "-"])]
