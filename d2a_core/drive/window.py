@@ -161,9 +161,11 @@ class DriveWindow:
         lines = [f"t {hud.get('t', 0.0):5.1f} s   {3.6 * float(hud.get('speed', 0.0)):5.0f} km/h",
                  f"progress {float(hud.get('progress', 0.0)):5.0f} m   opponent {float(hud.get('gap', 0.0)):+5.0f} m",
                  f"your intent: {hud.get('intent') or '-'}"]
+        if "assistant_action" in hud:  # how hard the assistant intervenes now
+            lines.append(f"assistant ||a_A|| {float(np.linalg.norm(hud['assistant_action'])):4.2f}")
         for i, line in enumerate(lines):
             self.screen.blit(self.font.render(line, True, COLOURS["text"]), (12, 10 + 24 * i))
-        y = 90
+        y = 14 + 24 * len(lines)
         for name, p in (hud.get("belief") or {}).items():
             self._bar(12, y, f"reads {name}", float(p), COLOURS["assistant"])
             y += 20
