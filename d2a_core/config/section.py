@@ -53,3 +53,9 @@ class Section(BaseModel):
 def record(section: BaseModel) -> dict[str, Any]:
     """The section as a config record: JSON types, neutral later additions left out."""
     return section.model_dump(mode="json", context=RECORD)
+
+
+def with_defaults(section_type: type[BaseModel], stored: dict[str, Any]) -> dict[str, Any]:
+    """A stored record or dump of `section_type` with the fields it leaves out at their defaults
+    (JSON types), for comparing with `section.model_dump(mode="json")`."""
+    return {**section_type.model_construct().model_dump(mode="json"), **stored}

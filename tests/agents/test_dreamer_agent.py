@@ -341,3 +341,17 @@ def test_an_agent_that_only_acts_does_not_build_its_optimisers(make_agent, fill_
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines()[-2:] == ["acting imported torch._dynamo: False",
                                             "training imported torch._dynamo: True"]
+
+
+def test_a_checkpoint_holds_the_config_record_and_older_full_dumps_still_load(make_agent):
+    """The config inside a checkpoint is the record (settings added later at their neutral value
+    left out), so adding or retiring a knob does not change checkpoint bytes or artifact ids;
+    checkpoints that hold the whole dump, as older ones do, load the same."""
+    agent = make_agent()
+    state = agent.state_dict()
+    assert "terminal_weight" not in state["config"] and "reward_relabel_head" not in state["config"]
+    assert state["config"]["units"] == agent.config.units
+    older = {**state, "config": agent.config.model_dump(mode="json")}
+    make_agent().load_state_dict(older)
+    with pytest.raises(ConfigError, match="units"):
+        make_agent(units=agent.config.units * 2).load_state_dict(state)

@@ -47,6 +47,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from d2a_core.agents.dreamer.nets import MLP
+from d2a_core.config.section import record, with_defaults
 from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .no_rssm_config import NoRSSMConfig
@@ -501,7 +502,7 @@ class NoRSSMAgent:
         statistics, RNG states, the update count; the rollout buffer only when asked."""
         state = {
             "format": 1,
-            "config": self.config.model_dump(mode="json"),
+            "config": record(self.config),  # as DreamerAgent's: knobs added or retired leave it unchanged
             "intents": list(self.intents),
             **self._learner_state(),
             "act_rng": self.act_generator.get_state(),
@@ -514,7 +515,7 @@ class NoRSSMAgent:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore a `state_dict` (same network settings and intents). Without a saved rollout the
         next rollout starts empty."""
-        saved, current = state["config"], self.config.model_dump(mode="json")
+        saved, current = with_defaults(type(self.config), state["config"]), self.config.model_dump(mode="json")
         differing = [key for key in _SHAPE_FIELDS if saved.get(key) != current.get(key)]
         if differing:
             raise ConfigError(

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from d2a_core.config.section import record, with_defaults
 from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .behavior import Behavior
@@ -325,7 +326,10 @@ class DreamerAgent:
         The replay's contents are included only when asked (they can be large); its RNG always."""
         state: dict[str, Any] = {
             "format": 1,
-            "config": self.config.model_dump(mode="json"),
+            # the config *record*: settings added later at their neutral value are left out and
+            # retired ones kept as recorded, so adding or retiring a knob leaves checkpoints (and
+            # the ids of the artifacts holding them) byte-identical
+            "config": record(self.config),
             "world_model": self.world_model.state_dict(),
             "behavior": self.behavior.state_dict(),
             "optimizers": self._optimizer_state_dicts(),
@@ -345,7 +349,7 @@ class DreamerAgent:
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore a `state_dict` (the network shapes of both configs must agree)."""
-        saved = state["config"]
+        saved = with_defaults(type(self.config), state["config"])
         current = self.config.model_dump(mode="json")
         differing = [key for key in _SHAPE_FIELDS if saved.get(key) != current.get(key)]
         if differing:
