@@ -55,7 +55,15 @@ def record(section: BaseModel) -> dict[str, Any]:
     return section.model_dump(mode="json", context=RECORD)
 
 
-def with_defaults(section_type: type[BaseModel], stored: dict[str, Any]) -> dict[str, Any]:
-    """A stored record or dump of `section_type` with the fields it leaves out at their defaults
-    (JSON types), for comparing with `section.model_dump(mode="json")`."""
-    return {**section_type.model_construct().model_dump(mode="json"), **stored}
+def stored_dump(section_type: type[BaseModel], stored: dict[str, Any], what: str) -> dict[str, Any]:
+    """A stored record (or an older whole dump) of `section_type` as `model_dump(mode="json")`
+    gives it today: left-out fields at their defaults, nested sections whole. `what` names the
+    file in the error when it no longer validates (a retired setting at another value)."""
+    from pydantic import ValidationError
+
+    from d2a_core.errors import ConfigError
+
+    try:
+        return section_type.model_validate(stored).model_dump(mode="json")
+    except ValidationError as error:
+        raise ConfigError(f"{what}: its config no longer validates: {error}") from None

@@ -47,7 +47,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from d2a_core.agents.dreamer.nets import MLP
-from d2a_core.config.section import record, with_defaults
+from d2a_core.config.section import record, stored_dump
 from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .no_rssm_config import NoRSSMConfig
@@ -515,7 +515,8 @@ class NoRSSMAgent:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore a `state_dict` (same network settings and intents). Without a saved rollout the
         next rollout starts empty."""
-        saved, current = with_defaults(type(self.config), state["config"]), self.config.model_dump(mode="json")
+        saved = stored_dump(type(self.config), state["config"], "checkpoint")
+        current = self.config.model_dump(mode="json")
         differing = [key for key in _SHAPE_FIELDS if saved.get(key) != current.get(key)]
         if differing:
             raise ConfigError(

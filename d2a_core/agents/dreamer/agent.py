@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from d2a_core.config.section import record, with_defaults
+from d2a_core.config.section import record, stored_dump
 from d2a_core.errors import ConfigError, TrainingError, UsageError
 
 from .behavior import Behavior
@@ -349,7 +349,7 @@ class DreamerAgent:
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore a `state_dict` (the network shapes of both configs must agree)."""
-        saved = with_defaults(type(self.config), state["config"])
+        saved = stored_dump(type(self.config), state["config"], "checkpoint")
         current = self.config.model_dump(mode="json")
         differing = [key for key in _SHAPE_FIELDS if saved.get(key) != current.get(key)]
         if differing:
