@@ -33,6 +33,19 @@ def _stay_script(path: Path, seconds: float = 30.0) -> Path:
     return path
 
 
+def _creep_script(path: Path, seconds: float = 30.0) -> Path:
+    """Full throttle for 1 s, then a 0.3 s brake tap each second and a short steer each way: a car
+    that creeps along the straightaway for the whole `seconds`."""
+    events = [{"t": 0.0, "down": "up"}, {"t": 1.0, "up": "up"}, {"t": 3.0, "down": "left"}, {"t": 3.2, "up": "left"},
+              {"t": 5.0, "down": "d"}, {"t": 5.2, "up": "d"}]
+    t = 1.5
+    while t < seconds:
+        events += [{"t": round(t, 1), "down": "down"}, {"t": round(t + 0.3, 1), "up": "down"}]
+        t += 1.0
+    path.write_text(yaml.safe_dump(events))
+    return path
+
+
 def _expected_human_actions(script: Path, steps: int) -> np.ndarray:
     """What the scripted keys ask for at each step, through the same controls."""
     events, controls, out = load_script(script), Controls(), []
@@ -83,7 +96,7 @@ def test_without_a_display_drive_exits_2_and_says_how_to_run_it(cli, tmp_path, p
 
 def test_a_scripted_drive_alone_is_stored_with_the_scripted_actions(cli, tmp_path, pair_store_template):
     store_dir = copy_store(pair_store_template, tmp_path)
-    script = _stay_script(tmp_path / "stay.yaml")
+    script = _creep_script(tmp_path / "creep.yaml")
     shot = tmp_path / "frame.png"
     args = ("drive", "--intent", "stay", "--track", "straightaway", "--script", str(script), "--seconds", "30",
             "--participant", "p01", "--trial", "1", "--json")
@@ -92,8 +105,8 @@ def test_a_scripted_drive_alone_is_stored_with_the_scripted_actions(cli, tmp_pat
     drive = res.json
     assert drive["intent"] == "stay" and drive["assistant"] is None and drive["participant"] == "p01"
     steps = int(drive["metrics"]["steps"])
-    assert steps >= 50  # the drive went on (at 10 Hz) until the finish or 30 s
-    assert drive["metrics"]["off_track"] == 0.0
+    assert steps == 300  # 30 s of race at 10 Hz, ended by --seconds
+    assert drive["metrics"]["off_track"] == 0.0 and drive["metrics"]["collision"] == 0.0
 
     store = Store(store_dir)
     art = store.get(drive["id"])
