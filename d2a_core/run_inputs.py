@@ -54,8 +54,8 @@ def track_of(store: Store, ref: str) -> str:
     raise NotFoundError(f"{ref} was not made on a track in store {store.root}")
 
 
-def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
-    """A track by id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
+def resolve_track(store: Store, ref: str) -> str:
+    """A track's id from its id, prefix, alias or bare name (`hairpin` means alias `track/hairpin`)."""
     try:
         track_id = store.resolve(ref)
     except NotFoundError:
@@ -65,6 +65,12 @@ def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
             track_id = store.resolve(f"track/{ref}")
         except NotFoundError:
             raise NotFoundError(f"no track {ref!r} in store {store.root}; build it with: d2a make-track {ref}") from None
+    return track_id
+
+
+def load_track_bundle(store: Store, ref: str, dt: float) -> TrackBundle:
+    """A track by id, prefix, alias or bare name, with its opponent replays."""
+    track_id = resolve_track(store, ref)
     art = store.get(track_id)
     if art.kind != "track":
         raise UsageError(f"{ref} is a {art.kind} artifact, not a track")

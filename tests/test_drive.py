@@ -21,29 +21,28 @@ OFFSCREEN = {"SDL_VIDEODRIVER": "dummy"}
 DT = 0.1
 
 
-def _stay_script(path: Path, seconds: float = 30.0) -> Path:
-    """Full throttle for 1.5 s, then 0.3 s of throttle each second, and a short steer each way."""
-    events = [{"t": 0.0, "down": "up"}, {"t": 1.5, "up": "up"}, {"t": 3.0, "down": "left"}, {"t": 3.2, "up": "left"},
-              {"t": 5.0, "down": "d"}, {"t": 5.2, "up": "d"}]
-    t = 2.0
+def _key_script(path: Path, tap: str, start: float, tap_s: float, seconds: float = 30.0) -> Path:
+    """Full throttle until `start` - 0.5 s, a short steer each way, then a `tap_s` press of `tap`
+    every second from `start`."""
+    events = [{"t": 0.0, "down": "up"}, {"t": start - 0.5, "up": "up"}, {"t": 3.0, "down": "left"},
+              {"t": 3.2, "up": "left"}, {"t": 5.0, "down": "d"}, {"t": 5.2, "up": "d"}]
+    t = start
     while t < seconds:
-        events += [{"t": round(t, 1), "down": "w"}, {"t": round(t + 0.3, 1), "up": "w"}]
+        events += [{"t": round(t, 1), "down": tap}, {"t": round(t + tap_s, 1), "up": tap}]
         t += 1.0
     path.write_text(yaml.safe_dump(events))
     return path
+
+
+def _stay_script(path: Path, seconds: float = 30.0) -> Path:
+    """Throttle for 1.5 s, then 0.3 s of throttle each second: a car that follows and finishes."""
+    return _key_script(path, "w", 2.0, 0.3, seconds)
 
 
 def _creep_script(path: Path, seconds: float = 30.0) -> Path:
-    """Full throttle for 1 s, then a 0.3 s brake tap each second and a short steer each way: a car
-    that creeps along the straightaway for the whole `seconds`."""
-    events = [{"t": 0.0, "down": "up"}, {"t": 1.0, "up": "up"}, {"t": 3.0, "down": "left"}, {"t": 3.2, "up": "left"},
-              {"t": 5.0, "down": "d"}, {"t": 5.2, "up": "d"}]
-    t = 1.5
-    while t < seconds:
-        events += [{"t": round(t, 1), "down": "down"}, {"t": round(t + 0.3, 1), "up": "down"}]
-        t += 1.0
-    path.write_text(yaml.safe_dump(events))
-    return path
+    """Throttle for 1 s, then a 0.3 s brake tap each second: a car that creeps along the
+    straightaway for the whole `seconds`."""
+    return _key_script(path, "down", 1.5, 0.3, seconds)
 
 
 def _expected_human_actions(script: Path, steps: int) -> np.ndarray:

@@ -24,16 +24,20 @@ class KeyEvent:
     down: bool
 
 
-def load_script(path: Path) -> list[KeyEvent]:
-    """The script's events in time order; a bad entry names the file, the entry and the field."""
-    import yaml
+def read_yaml_file(path: Path, what: str) -> object:
+    """The YAML document at `path`; an unreadable file or bad YAML names `what` and the file."""
+    from d2a_core.config import parse_yaml
 
     try:
-        data = yaml.safe_load(Path(path).read_text())
+        text = Path(path).read_text()
     except OSError as error:
-        raise UsageError(f"key script {path}: cannot read it ({error.strerror or error})") from None
-    except yaml.YAMLError as error:
-        raise UsageError(f"key script {path}: not YAML: {error}") from None
+        raise UsageError(f"{what} {path}: cannot read it ({error.strerror or error})") from None
+    return parse_yaml(text, f"{what} {path}")
+
+
+def load_script(path: Path) -> list[KeyEvent]:
+    """The script's events in time order; a bad entry names the file, the entry and the field."""
+    data = read_yaml_file(path, "key script")
     if not isinstance(data, list):
         raise UsageError(f"key script {path}: expected a list of {{t, down|up}} events, got {type(data).__name__}")
     events: list[KeyEvent] = []

@@ -55,7 +55,7 @@ def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
     from d2a_core import api
     from d2a_core.objectives.rewards import INTENTS
     from d2a_core.pipelines.evaluate import ENV_SECTIONS
-    from d2a_core.run_inputs import load_track_bundle, track_of
+    from d2a_core.run_inputs import load_track_bundle, resolve_track, track_of
 
     if spec.intent not in INTENTS:
         raise UsageError(f"unknown intent {spec.intent!r}; choose from {', '.join(INTENTS)}")
@@ -66,15 +66,15 @@ def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
         if spec.intent not in assistant.intents:
             raise UsageError(f"intent {spec.intent!r} is not one of the assistant's pair "
                              f"({', '.join(assistant.intents)})")
-        track_id = store.resolve(track_of(store, assistant.id))
-        if spec.track is not None and store.resolve(_track_ref(store, spec.track)) != track_id:
+        track_id = track_of(store, assistant.id)
+        if spec.track is not None and resolve_track(store, spec.track) != track_id:
             raise UsageError(f"--track {spec.track} is not the track assistant {assistant.id[:12]} was trained on")
         env = assistant.make_env(spec.intent)
         record = {k: assistant.artifact.config[k] for k in ENV_SECTIONS if k in assistant.artifact.config}
         return env, record, track_id, assistant
     if spec.track is None:
         raise UsageError("--track is needed to drive without an assistant")
-    track_id = store.resolve(_track_ref(store, spec.track))
+    track_id = resolve_track(store, spec.track)
     if spec.env_of is not None:
         from d2a_core.config.schema import Config
 
@@ -83,17 +83,6 @@ def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
     env = load_track_bundle(store, track_id, config.env.dt).env(config, spec.intent)
     record = {k: getattr(config, k).model_dump(mode="json") for k in ENV_SECTIONS}
     return env, record, track_id, None
-
-
-def _track_ref(store: Store, ref: str) -> str:
-    """A bare track name means its alias (`straightaway` -> `track/straightaway`)."""
-    from d2a_core.errors import NotFoundError
-
-    try:
-        store.resolve(ref)
-        return ref
-    except NotFoundError:
-        return f"track/{ref}" if "/" not in ref else ref
 
 
 def _with_intents(states: dict[str, dict], stated: str, belief: dict[str, float] | None) -> dict[str, dict]:

@@ -24,13 +24,13 @@ intent. The study table compares those pairs (`paired`) beside every trial's out
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal, Optional
+from typing import Any, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from d2a_core.artifacts import Store
-from d2a_core.drive.script import load_script
+from d2a_core.drive.script import load_script, read_yaml_file
 from d2a_core.errors import UsageError
 
 STUDY_KIND = "study"
@@ -58,14 +58,7 @@ class Protocol(BaseModel):
 
 def load_protocol(path: Path) -> Protocol:
     """The protocol at `path`; a wrong field names the file and the field."""
-    import yaml
-
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except OSError as error:
-        raise UsageError(f"study protocol {path}: cannot read it ({error.strerror or error})") from None
-    except yaml.YAMLError as error:
-        raise UsageError(f"study protocol {path}: not YAML: {error}") from None
+    data = read_yaml_file(path, "study protocol")
     try:
         protocol = Protocol.model_validate(data)
     except ValidationError as error:
