@@ -41,8 +41,8 @@ def drive(
     stored as a `drive` artifact (MCAP episode log and metrics); --seed picks the start and opponent."""
     from d2a_core import config as config_mod
     from d2a_core.drive.script import load_script
-    from d2a_core.drive.session import DriveSpec
-    from d2a_core.drive.session import drive as run_drive
+    from d2a_core.drive.one_drive import DriveSpec
+    from d2a_core.drive.one_drive import drive as run_drive
 
     resolved = config_mod.load(preset, config_file, overrides or [])
     events = load_script(script) if script is not None else None

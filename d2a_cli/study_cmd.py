@@ -25,7 +25,7 @@ def study(
     run: RunContext,
 ) -> None:
     """Run a small study: each trial asks (or tells) the intent, is driven in the window, and asks
-    whether the participant did what they meant. Every trial is stored as a `drive`, the session
+    whether the participant did what they meant. Every trial is stored as a `drive`, the whole run
     as a `study` with its table (alone against assisted, and paired by start); `d2a report`
     includes it."""
     from d2a_core import config as config_mod

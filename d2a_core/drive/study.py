@@ -83,7 +83,7 @@ def run_study(store: Store, protocol_path: Path, participant: str, config: Any, 
     """Drive every trial of the protocol at `protocol_path` as `participant`; store each drive and
     the study (its table per participant). Returns the study's summary with its `id`."""
     from d2a_core.drive.controls import Controls
-    from d2a_core.drive.session import DriveSpec, drive
+    from d2a_core.drive.one_drive import DriveSpec, drive
     from d2a_core.drive.window import DriveWindow
     from d2a_core.run_inputs import load_track_bundle
 

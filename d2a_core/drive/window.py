@@ -35,7 +35,7 @@ def display_problem() -> str | None:
         return "d2a drive needs pygame: pip install 'd2a[drive]'"
     if sys.platform.startswith("linux") and not (os.environ.get("SDL_VIDEODRIVER") or os.environ.get("DISPLAY")
                                                    or os.environ.get("WAYLAND_DISPLAY")):
-        return ("no display: run it in a desktop session (DISPLAY or WAYLAND_DISPLAY), or set "
+        return ("no display: run it on a desktop (DISPLAY or WAYLAND_DISPLAY), or set "
                 "SDL_VIDEODRIVER=dummy for an off-screen, scripted drive (--script)")
     return None
 
