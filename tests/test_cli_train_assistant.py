@@ -170,6 +170,45 @@ def test_a_partner_window_is_recorded_and_evaluated_with(cli, pair_store_templat
     assert res.code == 0, res.stderr
 
 
+def test_an_assistant_with_less_authority_acts_within_it_in_training_and_evaluation(
+        cli, pair_store_template, tmp_path):
+    """`assistant.authority=0.3`: recorded in the checkpoint's config (absent from the default
+    record, so older runs keep their keys), every action of training and of `d2a eval` lies in
+    [-0.3, 0.3], and the learner's whole range maps onto it."""
+    from d2a_core.config.section import record
+    from d2a_core.training.config import AssistantConfig
+
+    assert "authority" not in record(AssistantConfig())
+    store_path = copy_store(pair_store_template, tmp_path)
+    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.authority=0.3",
+              "--set", "assistant.checkpoints=1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+    store = Store(store_path)
+    art = store.get(res.json["assistants"][0]["id"])
+    assert art.config["assistant"]["authority"] == 0.3
+    trained = np.load(io.BytesIO(store.read_bytes(art.id, "steps.npz")))["assistant_action"]
+    res = cli("eval", *PAIR, "--episodes", "1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+    evaluation = res.json["evaluations"][0]
+    assert evaluation["assistant"] == art.id
+    evaluated = np.load(io.BytesIO(store.read_bytes(evaluation["id"], "steps.npz")))["assistant_action"]
+    for actions in (trained, evaluated):
+        assert np.abs(actions).max() <= 0.3 + 1e-6
+    # the learner's own range maps onto [-0.3, 0.3]: exploring, it reaches the bound but not past it
+    from d2a_core.sim.race_env import RaceEnv
+    from d2a_core.tracks.sources import load_track_source
+    from d2a_core.training.assistant import load_assistant
+
+    env = RaceEnv(load_track_source("straightaway").track)
+    agent, *_ = load_assistant(store, art.id, env.observation_space, env.action_space)
+    obs, _ = env.reset(seed=0)
+    n = 256
+    record = {"obs": np.repeat(obs[None], n, 0).astype(np.float32), "is_first": np.ones(n, bool),
+              "reward": np.zeros(n, np.float32), "is_terminal": np.zeros(n, bool)}
+    sampled, _ = agent.policy(record, None, explore=True)
+    assert 0.25 < np.abs(sampled).max() <= 0.3 + 1e-6
+
+
 def test_reward_relabelling_is_recorded_and_trains_and_a_hand_set_learner_key_is_refused(
         cli, pair_store_template, tmp_path):
     """`assistant.reward_relabel=true`: recorded in the run's config with the learner key it sets
