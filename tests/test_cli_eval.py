@@ -175,6 +175,23 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
     assert table.code == 0 and "finished ahead" in table.stdout and "→" in table.stdout
 
 
+def test_dreamer_ail_is_evaluated_and_swapped_like_any_baseline_and_traces_to_its_demonstrations(cli, eval_store):
+    """`eval --baseline dreamer-ail`: the same protocol (no intent F1: it has no estimate), its
+    lineage names the experts' demonstrations it imitated; `intent-swap` drives it too."""
+    res = cli("eval", *PAIR, "--baseline", "dreamer-ail", "--episodes", "1", "--json", store=eval_store)
+    assert res.code == 0, res.stderr
+    ail = next(e for e in res.json["evaluations"] if e["method"] == "dreamer-ail")
+    assert ail["intent_f1"] is None
+    store = Store(eval_store)
+    demos = [i for i in store.get(ail["assistant"]).inputs if store.get(i).kind == "demonstrations"]
+    assert len(demos) == 1
+    made_by = [store.get(i) for i in store.get(demos[0]).inputs if store.get(i).kind == "human"]
+    assert sorted(h.labels["intent"] for h in made_by) == ["pass", "stay"]  # each intent's expert
+    res = cli("intent-swap", *PAIR, "--method", "dreamer-ail", "--trials", "1", "--window", "1", "3", "--json",
+              store=eval_store)
+    assert res.code == 0, res.stderr
+
+
 def test_eval_errors_name_what_to_run(cli, eval_store):
     res = cli("eval", *PAIR, "--seed", "3", "--json", store=eval_store)
     assert res.code == 2

@@ -48,7 +48,7 @@ def test_every_method_trains_end_to_end_and_is_stored_with_its_lineage(cli, trai
         summary = r["checkpoints"][-1]["metrics"]
         assert summary["pairs"] == 4
         assert {"pass/weak/progress_gain", "stay/expert/progress_ratio"} <= set(summary)
-        infers = r["method"] != "dreamer"
+        infers = r["method"] not in ("dreamer", "dreamer-ail")
         assert ("intent_f1" in summary) == infers
         steps = np.load(io.BytesIO(store.read_bytes(r["id"], "steps.npz")))
         assert steps["terms"].shape[1] == 5 and ("y_hat" in steps) == infers
@@ -242,8 +242,9 @@ def _flat(state, prefix=""):
             yield f"{prefix}{key}", value
 
 
-def test_resume_after_sigkill(cli, pair_store):
-    args = ["train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--seed", "1",
+@pytest.mark.parametrize("method, seed", [("dream2assist", 1), ("dreamer-ail", 2)])
+def test_resume_after_sigkill(cli, pair_store, method, seed):
+    args = ["train-assistant", *PAIR, "--method", method, *SMOKE, "--seed", str(seed),
             "--set", "assistant.env_steps=480", "--set", "assistant.checkpoints=4", "--json"]
     cmd = [sys.executable, "-m", "d2a_cli", *args, "--store", str(pair_store)]
     earlier_states = set((Path(pair_store) / "runs").glob("*/state.pt"))
@@ -251,7 +252,7 @@ def test_resume_after_sigkill(cli, pair_store):
     store = Store(pair_store)
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:
-        mine = [a for a in store.list("assistant") if a.labels["seed"] == 1]
+        mine = [a for a in store.list("assistant") if a.labels["seed"] == seed and a.labels["method"] == method]
         if mine and set((Path(pair_store) / "runs").glob("*/state.pt")) - earlier_states:
             break
         time.sleep(0.2)

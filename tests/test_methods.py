@@ -22,20 +22,27 @@ def test_the_papers_rows():
         "dream2assist+a-r": (True, 0.0, 1.0, True),
         "dreamer": (False, 0.0, 0.0, True),
         "no-rssm": (True, 1.0, 0.0, True),
-        "dreamer-ail": (False, None, None, False),
+        "dreamer-ail": (False, 0.0, 0.0, True),
     }
     assert get_method("dream2assist").labels == ("intent",) and get_method("dreamer").labels == ()
     assert get_method("dream2assist+a-r").uses_experts and not get_method("dreamer").uses_experts
-    assert method_names(implemented_only=True) == ["dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer", "no-rssm"]
+    assert method_names(implemented_only=True) == ["dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer",
+                                                   "no-rssm", "dreamer-ail"]
+    assert [name for name in METHODS if METHODS[name].demonstrations] == ["dreamer-ail"]
 
 
 def test_unknown_and_unimplemented_names_are_usage_errors():
     with pytest.raises(UsageError, match="unknown method 'dream2asist'.*dream2assist, dream2assist\\+a.*dreamer-ail"):
         get_method("dream2asist")
-    with pytest.raises(UsageError, match="'dreamer-ail' is registered but not implemented.*baselines.dreamer_ail:build_assistant"):
-        get_method("dreamer-ail")
-    with pytest.raises(UsageError, match="dreamer-ail"):
-        METHODS["dreamer-ail"].builder()
+    unbuilt = register_method(Method("unbuilt", False, 0.0, 0.0, ("assistant",), "somewhere.unbuilt:build",
+                                     implemented=False))
+    try:
+        with pytest.raises(UsageError, match="'unbuilt' is registered but not implemented.*somewhere.unbuilt:build"):
+            get_method("unbuilt")
+        with pytest.raises(UsageError, match="unbuilt"):
+            unbuilt.builder()
+    finally:
+        del METHODS["unbuilt"]
 
 
 def test_agents_load_lazily_and_reading_the_registry_imports_no_torch():

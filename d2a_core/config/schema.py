@@ -17,6 +17,7 @@ from d2a_core.sim.vehicle import VehicleConfig
 from d2a_core.sim.world_config import WorldConfig
 from d2a_core.tracks.config import TracksConfig
 from d2a_core.training.config import AssistantConfig, HumansConfig
+from d2a_core.agents.baselines.dreamer_ail_config import DreamerAILConfig
 from d2a_core.agents.baselines.no_rssm_config import NoRSSMConfig
 from d2a_core.agents.dreamer.config import DreamerConfig
 
@@ -55,3 +56,4 @@ class Config(Section):
     humans: HumansConfig = HumansConfig()
     assistant: AssistantConfig = AssistantConfig()
     no_rssm: NoRSSMConfig = NoRSSMConfig()
+    dreamer_ail: DreamerAILConfig = DreamerAILConfig()

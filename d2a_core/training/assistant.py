@@ -47,6 +47,7 @@ from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.authority import assistant_action_space
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
+from d2a_core.training.demonstrations import expert_demonstrations
 from d2a_core.training.humans import load_human
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
@@ -148,6 +149,12 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window),
                                assistant_action_space(act_space, ac.authority), intents, seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
+    if method.demonstrations:
+        demos_id, demos = expert_demonstrations(
+            store, bundle, cfg, [(pop["expert"], by_id[pop["expert"]]) for _, pop in populations],
+            getattr(cfg, method.agent_section).demo_episodes, seed)
+        agent.set_demonstrations(demos["obs"], demos["action"])
+        inputs.append(demos_id)
     state = RunProgress(store, run, inputs, ac.env_steps, ac.checkpoints)
     timer = _Timer()
     saved = state.resume(agent, device, "the assistant")

@@ -9,7 +9,7 @@ Each method is one row of the paper's comparison (section 4 and appendix; DESIGN
 | `dream2assist+a-r` | yes | 0 | 1 | the distance to the expert's action only |
 | `dreamer` | no | 0 | 0 | DreamerV3 on task + intervention reward (FCP-style) |
 | `no-rssm` | auxiliary classifier | 1 | 0 | 16-frame window, model-free actor-critic (PPO), `agents.baselines.no_rssm` |
-| `dreamer-ail` | no | - | - | behaviour-transformer prior + adversarial-imitation residual (not built yet) |
+| `dreamer-ail` | no | 0 | 0 | a residual trained by adversarial imitation of the experts (GAIL on PPO), `agents.baselines.dreamer_ail` |
 
 A method names its agent's builder lazily (`entry_point = "module:function"`, as Gymnasium
 does), so reading the registry (the CLI checking `--method`) imports no torch. A builder is called
@@ -71,6 +71,9 @@ class Method:
     entry_point: str  # "module:function" building its agent, imported only by `builder`
     agent_section: str = "dreamer"  # the config section handed to the builder
     implemented: bool = True
+    # learns from the experts' demonstrations: its section has `demo_episodes`, its agent
+    # `set_demonstrations(obs, action)` (d2a_core.training.demonstrations)
+    demonstrations: bool = False
     description: str = ""
 
     @property
@@ -188,9 +191,10 @@ for _method in (
            "d2a_core.agents.baselines.no_rssm:build_assistant", agent_section="no_rssm",
            description="no world model: a 16-frame observation window, model-free actor-critic, "
                        "an auxiliary intent classifier"),
-    Method("dreamer-ail", False, None, None, (*_COMMON_SECTIONS, "dreamer_ail"),
-           "d2a_core.agents.baselines.dreamer_ail:build_assistant", agent_section="dreamer_ail", implemented=False,
-           description="behaviour-transformer prior plus an adversarial-imitation residual assistant (BeTAIL-style)"),
+    Method("dreamer-ail", False, 0.0, 0.0, (*_COMMON_SECTIONS, "dreamer_ail"),
+           "d2a_core.agents.baselines.dreamer_ail:build_assistant", agent_section="dreamer_ail", demonstrations=True,
+           description="a residual trained by adversarial imitation of the experts' driving "
+                       "(BeTAIL's AIL assistant beside a Dreamer human); reward: the discriminator's alone"),
 ):
     register_method(_method)
 del _method
