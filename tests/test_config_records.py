@@ -1,7 +1,8 @@
 """Run keys and artifact ids hash the config record: retiring a setting, adding one at its
 neutral value or regrouping keys must leave every preset's record as stored artifacts hold it.
 `data/config_records_before_retirement.json` was written by d2a before the replay and update
-experiments were retired."""
+experiments were retired (its smoke record has since gained the `dreamer_ail` section that the
+smoke preset sets: smoke's artifacts are never kept, quick's and paper's records are unchanged)."""
 
 from __future__ import annotations
 
