@@ -149,12 +149,15 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window),
                                assistant_action_space(act_space, ac.authority), intents, seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
+    demos_s = 0.0
     if method.demonstrations:
+        started = time.perf_counter()
         demos_id, demos = expert_demonstrations(
             store, bundle, cfg, [(pop["expert"], by_id[pop["expert"]]) for _, pop in populations],
             getattr(cfg, method.agent_section).demo_episodes, seed)
         agent.set_demonstrations(demos["obs"], demos["action"])
         inputs.append(demos_id)
+        demos_s = time.perf_counter() - started
     state = RunProgress(store, run, inputs, ac.env_steps, ac.checkpoints)
     timer = _Timer()
     saved = state.resume(agent, device, "the assistant")
@@ -162,6 +165,8 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     unassisted = saved.get("unassisted")
     drawn = saved.get("drawn", [0] * len(population_ids))  # finished training episodes per population
     timer.seconds = saved.get("timing", timer.seconds)
+    if demos_s:
+        timer.add("demonstrations", demos_s)
     if not saved:
         state.hold()
 
