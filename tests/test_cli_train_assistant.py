@@ -170,24 +170,19 @@ def test_a_partner_window_is_recorded_and_evaluated_with(cli, pair_store_templat
     assert res.code == 0, res.stderr
 
 
-def test_an_assistant_with_less_authority_acts_within_it_in_training_and_evaluation(
+def test_dreamer_ails_residual_stays_within_its_bound_in_training_and_evaluation(
         cli, pair_store_template, tmp_path):
-    """`assistant.authority=0.3`: recorded in the checkpoint's config (absent from the default
-    record, so older runs keep their keys), every action of training and of `d2a eval` lies in
-    [-0.3, 0.3], and the learner's whole range maps onto it."""
-    from d2a_core.config.section import record
-    from d2a_core.training.config import AssistantConfig
-
-    assert "authority" not in record(AssistantConfig())
+    """`dreamer_ail.residual_bound=0.3`: recorded in the checkpoint's config, every action of
+    training and of `d2a eval` lies in [-0.3, 0.3], and the learner's whole range maps onto it."""
     store_path = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.authority=0.3",
+    res = cli("train-assistant", *PAIR, "--method", "dreamer-ail", *SMOKE, "--set", "dreamer_ail.residual_bound=0.3",
               "--set", "assistant.checkpoints=1", "--json", store=store_path)
     assert res.code == 0, res.stderr
     store = Store(store_path)
     art = store.get(res.json["assistants"][0]["id"])
-    assert art.config["assistant"]["authority"] == 0.3
+    assert art.config["dreamer_ail"]["residual_bound"] == 0.3
     trained = np.load(io.BytesIO(store.read_bytes(art.id, "steps.npz")))["assistant_action"]
-    res = cli("eval", *PAIR, "--episodes", "1", "--json", store=store_path)
+    res = cli("eval", *PAIR, "--method", "dreamer-ail", "--episodes", "1", "--json", store=store_path)
     assert res.code == 0, res.stderr
     evaluation = res.json["evaluations"][0]
     assert evaluation["assistant"] == art.id

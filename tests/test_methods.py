@@ -112,11 +112,11 @@ def test_retired_assistant_and_population_settings_load_at_their_former_defaults
     """Stored records may carry `assistant.intent_lr: null`, `assistant.intent_reads: latent` and
     `humans.train_start_spread: 0.0` (settings retired after their experiments); any other value
     names the key."""
-    config = Config.model_validate({"assistant": {"intent_lr": None, "intent_reads": "latent"},
+    config = Config.model_validate({"assistant": {"intent_lr": None, "intent_reads": "latent", "authority": 1.0},
                                     "humans": {"train_start_spread": 0.0}})
     assert config == Config()
     for section, key, value in (("assistant", "intent_lr", 1e-3), ("assistant", "intent_reads", "partner_window"),
-                                ("humans", "train_start_spread", 0.7)):
+                                ("assistant", "authority", 0.5), ("humans", "train_start_spread", 0.7)):
         with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
             Config.model_validate({section: {key: value}})
 

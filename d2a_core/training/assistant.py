@@ -44,7 +44,6 @@ from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.allocator import keep_freed_memory
-from d2a_core.training.authority import assistant_action_space
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
 from d2a_core.training.demonstrations import expert_demonstrations
@@ -146,8 +145,8 @@ def _run(store: Store, bundle: TrackBundle, pair: str, intents: tuple[str, ...],
     expert_agents = [by_id[pop["expert"]] for _, pop in populations]
     the_panel = panel([pop for _, pop in populations], intents, ac.panel_weakest)
 
-    agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window),
-                               assistant_action_space(act_space, ac.authority), intents, seed, device)
+    agent = method.build_agent(cfg, assistant_observation_space(obs_space, ac.partner_window), act_space, intents,
+                               seed, device)
     inputs = [bundle.track_id, *bundle.replay_ids, *population_ids]
     demos_s = 0.0
     if method.demonstrations:
@@ -298,9 +297,7 @@ def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "
     section_type = type(getattr(Config(), method.agent_section))
     section = section_type.model_validate(art.config[method.agent_section])
     window = int(art.config.get("assistant", {}).get("partner_window", 1))
-    authority = float(art.config.get("assistant", {}).get("authority", 1.0))
-    agent = method.builder()(section, assistant_observation_space(obs_space, window),
-                             assistant_action_space(act_space, authority), intents, 0, device)
+    agent = method.builder()(section, assistant_observation_space(obs_space, window), act_space, intents, 0, device)
     state = load_torch(store.path(art.id, "agent.pt"), f"assistant {art.id[:12]} file 'agent.pt'", device,
                        "the store holds a file that d2a did not write; remove the artifact or the store")
     agent.load_state_dict(state)

@@ -75,11 +75,6 @@ class AssistantConfig(Section):
         1, ge=1, le=64,
         description="the human's last K actions in the assistant's observation (1: the partner slot alone, the paper's)",
     )
-    authority: float = Field(
-        1.0, gt=0, le=1,
-        description="largest |a_A| on each control: the assistant acts in [-authority, authority] "
-                    "(1: the env's full range, the paper's)",
-    )
 
     # The assistant's own DreamerV3 settings where they differ from the drivers' (`dreamer.*`, which
     # the populations share): a Dreamer-family method's learner takes these (`Method.configure`).
@@ -109,9 +104,10 @@ class AssistantConfig(Section):
                     "(sets dreamer.reward_relabel_head=intent; methods without both ignore it)",
     )
 
-    omit_at_default = {"partner_window": 1, "authority": 1.0, "train_ratio": None,
+    omit_at_default = {"partner_window": 1, "train_ratio": None,
                        "actor_grad": None, "imag_starts": None, "precision": None,
                        "reward_relabel": False}
     # experiments that did not become defaults: the intent head's own learning rate, and what the
     # head reads besides the model state (docs/experiments/intent-estimate.md)
-    retired = {"intent_lr": None, "intent_reads": "latent"}
+    # and a bound on every method's action (docs/experiments/assistant-safety.md, "A bounded residual")
+    retired = {"intent_lr": None, "intent_reads": "latent", "authority": 1.0}

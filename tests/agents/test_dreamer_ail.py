@@ -23,8 +23,9 @@ def make_agent(bound: float = 1.0, seed: int = 0, **overrides) -> DreamerAILAgen
     values = dict(window=1, units=32, layers=1, rollout_length=16, epochs=4, minibatches=2, init_std=0.8,
                   disc_units=32, disc_layers=1, disc_steps=8, disc_batch=64, disc_lr=1e-3)
     values.update(overrides)
-    return build_assistant(DreamerAILConfig(**values), gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
-                           gym.spaces.Box(-bound, bound, (2,), np.float32), INTENTS, seed=seed)
+    return build_assistant(DreamerAILConfig(residual_bound=bound, **values),
+                           gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
+                           gym.spaces.Box(-1.0, 1.0, (2,), np.float32), INTENTS, seed=seed)
 
 
 def expert_action(target: np.ndarray) -> np.ndarray:

@@ -9,8 +9,9 @@ to make the car's driving look like the experts'. It asks whether a world model 
 What is built here, and why:
 
 * **The residual** is the assistant's action `a_A`, added to the human's as for every method
-  (`clip(a_H + a_A, -1, 1)`); its bound is the assistant's action space (`assistant.authority`),
-  so the baseline is bounded the same way as the methods it is compared with.
+  (`clip(a_H + a_A, -1, 1)`), bounded to [-b, b] on each control (`residual_bound`, 0.5: the
+  human's own input keeps at least half of the car). BeTAIL bounds its residual; the paper gives
+  no value, and its Dreamer-AIL's intervention of 1.4 says it used the whole range.
 * **The discriminator** `D(s, b)` tells the experts' (observation, action) pairs from the assisted
   car's (observation, executed action `b`). The observation is the env's without the partner slot
   (an expert driving alone has none); the executed action is the one the car received, read back
@@ -197,5 +198,9 @@ class DreamerAILAgent(NoRSSMAgent):
 
 def build_assistant(config: DreamerAILConfig, obs_space: gym.spaces.Box, act_space: gym.spaces.Box,
                     intents: Sequence[str], seed: int = 0, device: str = "cpu") -> DreamerAILAgent:
-    """The method registry's entry point for `dreamer-ail`."""
-    return DreamerAILAgent(obs_space, act_space, config, intents, seed=seed, device=device)
+    """The method registry's entry point for `dreamer-ail`: the env's action space narrowed to
+    the residual's bound (the learner acts in [-1, 1], mapped onto [-bound, bound])."""
+    low = np.maximum(act_space.low, -config.residual_bound)
+    high = np.minimum(act_space.high, config.residual_bound)
+    return DreamerAILAgent(obs_space, gym.spaces.Box(low, high, dtype=act_space.dtype), config, intents, seed=seed,
+                           device=device)

@@ -19,6 +19,13 @@ class DreamerAILConfig(NoRSSMConfig):
         False, description="always false: the baseline has no intent estimate (the learner's no-rssm key)"
     )
 
+    # --- the residual
+    residual_bound: float = Field(
+        0.5, gt=0, le=1,
+        description="largest |a_A| on each control: the residual acts in [-bound, bound], so the human's "
+                    "own input keeps at least 1 - bound of the car",
+    )
+
     # --- the discriminator D(s, a): an MLP on the car's observation and the executed action
     disc_units: int = Field(128, gt=0, description="width of the discriminator's hidden layers")
     disc_layers: int = Field(2, ge=1, description="hidden layers of the discriminator")
