@@ -64,7 +64,10 @@ def _with_neutral_additions(values: Mapping[str, Any], section: type) -> dict[st
     or predates the key and behaved as it does."""
     filled = dict(values)
     for name, neutral in section.omit_at_default.items():
-        filled.setdefault(name, neutral)
+        # a whole section missing from a record is one the artifact does not depend on (a record
+        # holds only its run's sections), not one left out at its defaults
+        if not isinstance(neutral, Mapping):
+            filled.setdefault(name, neutral)
     for name, field in section.model_fields.items():
         kind = field.annotation
         if isinstance(filled.get(name), Mapping) and isinstance(kind, type) and issubclass(kind, Section):
