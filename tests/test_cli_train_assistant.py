@@ -140,6 +140,18 @@ def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistant
     assert pop["config_source"]["preset"] == "smoke" and pop["config_source"]["overrides"] == ["humans.checkpoints=4"]
 
 
+def _train_one(cli, template, tmp_path, method: str, override: str):
+    """One smoke assistant of `method` with one `--set` override and one checkpoint, on a copy of
+    the pair store: (store path, store, the final checkpoint's artifact, the run's JSON result)."""
+    store_path = copy_store(template, tmp_path)
+    res = cli("train-assistant", *PAIR, "--method", method, *SMOKE, "--set", override,
+              "--set", "assistant.checkpoints=1", "--json", store=store_path)
+    assert res.code == 0, res.stderr
+    store = Store(store_path)
+    run = res.json["assistants"][0]
+    return store_path, store, store.get(run["id"]), run
+
+
 def test_a_partner_window_is_recorded_and_evaluated_with(cli, pair_store_template, tmp_path):
     """`assistant.partner_window=4`: the config record names it (the default record leaves it
     out, so runs made before the key keep their run keys), the world model reads the env's
@@ -153,12 +165,8 @@ def test_a_partner_window_is_recorded_and_evaluated_with(cli, pair_store_templat
     from d2a_core.training.config import AssistantConfig
 
     assert "partner_window" not in record(AssistantConfig()) and "partner_window" in AssistantConfig().model_dump()
-    store_path = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.partner_window=4",
-              "--set", "assistant.checkpoints=1", "--json", store=store_path)
-    assert res.code == 0, res.stderr
-    store = Store(store_path)
-    art = store.get(res.json["assistants"][0]["id"])
+    store_path, store, art, _ = _train_one(cli, pair_store_template, tmp_path, "dream2assist",
+                                           "assistant.partner_window=4")
     assert art.config["assistant"]["partner_window"] == 4
     weights = dict(_flat(torch.load(store.path(art.id, "agent.pt"), weights_only=False)))
     env_width = RaceEnv(load_track_source("straightaway").track).observation_space.shape[0]
@@ -174,12 +182,8 @@ def test_dreamer_ails_residual_stays_within_its_bound_in_training_and_evaluation
         cli, pair_store_template, tmp_path):
     """`dreamer_ail.residual_bound=0.3`: recorded in the checkpoint's config, every action of
     training and of `d2a eval` lies in [-0.3, 0.3], and the learner's whole range maps onto it."""
-    store_path = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dreamer-ail", *SMOKE, "--set", "dreamer_ail.residual_bound=0.3",
-              "--set", "assistant.checkpoints=1", "--json", store=store_path)
-    assert res.code == 0, res.stderr
-    store = Store(store_path)
-    art = store.get(res.json["assistants"][0]["id"])
+    store_path, store, art, _ = _train_one(cli, pair_store_template, tmp_path, "dreamer-ail",
+                                           "dreamer_ail.residual_bound=0.3")
     assert art.config["dreamer_ail"]["residual_bound"] == 0.3
     trained = np.load(io.BytesIO(store.read_bytes(art.id, "steps.npz")))["assistant_action"]
     res = cli("eval", *PAIR, "--method", "dreamer-ail", "--episodes", "1", "--json", store=store_path)
@@ -214,14 +218,10 @@ def test_reward_relabelling_is_recorded_and_trains_and_a_hand_set_learner_key_is
     from d2a_core.config.section import record
 
     assert "reward_relabel_head" not in record(DreamerConfig())
-    store_path = copy_store(pair_store_template, tmp_path)
-    res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "assistant.reward_relabel=true",
-              "--set", "assistant.checkpoints=1", "--json", store=store_path)
-    assert res.code == 0, res.stderr
-    store = Store(store_path)
-    art = store.get(res.json["assistants"][0]["id"])
+    store_path, store, art, run = _train_one(cli, pair_store_template, tmp_path, "dream2assist",
+                                             "assistant.reward_relabel=true")
     assert art.config["dreamer"]["reward_relabel_head"] == "intent" and art.config["assistant"]["reward_relabel"]
-    curve = store.read_bytes(res.json["assistants"][0]["run_id"], "curve.jsonl").decode().splitlines()
+    curve = store.read_bytes(run["run_id"], "curve.jsonl").decode().splitlines()
     assert '"wm/reward_relabel_change"' in curve[-1]
     res = cli("train-assistant", *PAIR, "--method", "dream2assist", *SMOKE, "--set", "dreamer.reward_relabel_head=intent",
               "--json", store=store_path)
