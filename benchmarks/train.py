@@ -6,13 +6,8 @@ warm-up and the world-model and behaviour seconds of each update, per model widt
 
     python benchmarks/train.py --units 128 512 --updates 5
     python benchmarks/train.py --loop-steps 4000        # the full loop on the straightaway
-    python benchmarks/train.py --units 128 --actor-grad backprop reinforce   # both actor gradients
-    python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --imag-starts 256 \
-        --actor-grad backprop reinforce backprop reinforce                  # the `quick` model
     python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --obs-dim 98 \
-        --imag-starts 256 128 256 128                                       # imagination starts
-    python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --obs-dim 98 \
-        --imag-starts 256 --precision float32 bfloat16 float32 bfloat16      # bf16 autocast
+        --imag-starts 256 128 256 128                                       # the `quick` model; starts
 
 `--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
 ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
@@ -57,18 +52,16 @@ def _fill_replay(agent: DreamerAgent, steps: int, envs: int, seed: int) -> None:
 
 
 def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.Namespace,
-              actor_grad: str = "backprop", imag_starts: int | None = None, precision: str = "float32") -> dict:
+              imag_starts: int | None = None) -> dict:
     """Time `updates` full updates of an agent of the given width after `warmup` updates."""
     config = DreamerConfig(
         units=units,
         deter=deter,
         stoch=args.latent[0],
         classes=args.latent[1],
-        continuous_actor_grad=actor_grad,
         imag_starts=imag_starts,
         batch_size=args.batch_size,
         batch_length=args.batch_length,
-        precision=precision,
         device=args.device,
         prefill_steps=0,
         replay_capacity=100_000,
@@ -139,7 +132,7 @@ def full_loop(args: argparse.Namespace) -> dict:
     sim_clock = [0.0]
     envs = [_TimedEnv(RaceEnv("straightaway", intent="pass"), sim_clock) for _ in range(8)]
     config = DreamerConfig(units=128, deter=256, stoch=16, classes=16, train_ratio=args.train_ratio,
-                           imag_starts=256, prefill_steps=1000, precision=args.precision[0], device=args.device)
+                           imag_starts=256, prefill_steps=1000, device=args.device)
     agent = DreamerAgent(envs[0].observation_space, envs[0].action_space, config, seed=0)
     collector = Collector(envs, agent, seed=0)
     env_steps = 0
@@ -183,12 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--updates", type=int, default=5, help="timed updates per width")
     parser.add_argument("--warmup", type=int, default=2, help="untimed updates first")
     parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
-    parser.add_argument("--precision", choices=["float32", "bfloat16"], nargs="+", default=["float32"],
-                        help="training precision(s), each timed at every width (the loop takes the first)")
     parser.add_argument("--imag-starts", type=int, nargs="+", default=[None],
                         help="imagination starts, each timed at every width (default all 1024)")
-    parser.add_argument("--actor-grad", nargs="+", default=["backprop"], choices=["backprop", "reinforce"],
-                        help="continuous actor gradient(s) to time, each at every width")
     parser.add_argument("--batch-size", type=int, default=16, help="replayed sequences per update")
     parser.add_argument("--batch-length", type=int, default=64, help="steps per replayed sequence")
     parser.add_argument("--obs-dim", type=int, default=40)
@@ -202,17 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     malloc_tuned = False if args.default_malloc else keep_freed_memory()
     if args.loop_steps:
-        report = {**full_loop(args), "precision": args.precision[0], "device": args.device, "threads": args.threads,
+        report = {**full_loop(args), "device": args.device, "threads": args.threads,
                   "malloc_tuned": malloc_tuned, "mkl_on_amd": mkl_on_amd.status(), "torch": torch.__version__,
                   "load_average_after": os.getloadavg()}
         json.dump(report, sys.stdout, indent=2)
         print()
         return 0
     # every setting in one process, in turn: their ratio is free of what differs between processes
-    results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, grad, starts, precision),
-                    actor_grad=grad, imag_starts=starts or 1024, precision=precision)
-               for u in args.units for grad in args.actor_grad for starts in args.imag_starts
-               for precision in args.precision]
+    results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, starts),
+                    imag_starts=starts or 1024)
+               for u in args.units for starts in args.imag_starts]
     report = {
         "benchmark": "dreamer_full_update",
         "batch": f"{args.batch_size}x{args.batch_length}",

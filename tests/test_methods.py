@@ -144,25 +144,33 @@ def test_reward_relabelling_is_for_a_dreamer_intent_head_with_expert_terms_only(
 
 
 def test_the_assistants_own_learner_settings_reach_dreamer_methods_only():
-    """`assistant.train_ratio` / `assistant.actor_grad` / `assistant.imag_starts` replace the
-    drivers' `dreamer.*` values in a Dreamer-family assistant's learner; unset, the shared values stay; no-rssm has no such learner."""
+    """`assistant.train_ratio` / `assistant.imag_starts` replace the drivers' `dreamer.*` values in
+    a Dreamer-family assistant's learner; unset, the shared values stay; no-rssm has no such learner."""
     base = Config()
-    own = _assistant(base, train_ratio=base.dreamer.train_ratio * 2, actor_grad="reinforce", imag_starts=96,
-                     precision="bfloat16")
+    own = _assistant(base, train_ratio=base.dreamer.train_ratio * 2, imag_starts=96)
     for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer"):
         dreamer = get_method(name).configure(own, PAIR).dreamer
-        assert (dreamer.train_ratio, dreamer.continuous_actor_grad, dreamer.imag_starts, dreamer.precision) == (
-            base.dreamer.train_ratio * 2, "reinforce", 96, "bfloat16")
+        assert (dreamer.train_ratio, dreamer.imag_starts) == (base.dreamer.train_ratio * 2, 96)
         unset = get_method(name).configure(base, PAIR).dreamer
-        assert (unset.train_ratio, unset.imag_starts, unset.precision) == (
-            base.dreamer.train_ratio, base.dreamer.imag_starts, base.dreamer.precision)
+        assert (unset.train_ratio, unset.imag_starts) == (base.dreamer.train_ratio, base.dreamer.imag_starts)
     assert get_method("no-rssm").configure(own, PAIR).dreamer == base.dreamer
     # with the intent head appended as well
     assert [h.name for h in get_method("dream2assist").configure(own, PAIR).dreamer.extra_heads] == ["intent"]
     # unset they stay out of the record, so earlier runs keep their keys
     from d2a_core.config.section import record
 
-    assert not {"train_ratio", "actor_grad", "imag_starts", "precision", "reward_relabel"} & set(record(base.assistant))
+    assert not {"train_ratio", "imag_starts", "reward_relabel"} & set(record(base.assistant))
+
+
+def test_the_retired_learner_settings_load_only_at_their_neutral_value():
+    """A stored assistant record from before `assistant.actor_grad` / `assistant.precision` were
+    retired left them out (None); one that set them names the key."""
+    from d2a_core.training.config import AssistantConfig
+
+    assert AssistantConfig.model_validate({"actor_grad": None, "precision": None}) == AssistantConfig()
+    for key, value in (("actor_grad", "reinforce"), ("precision", "bfloat16")):
+        with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
+            AssistantConfig.model_validate({key: value})
 
 
 def test_registering_twice_or_without_entry_point_is_refused():

@@ -4,7 +4,7 @@ Artifacts record their resolved config sections, not the preset's name. A record
 when every value it holds equals P's resolved value (the preset file over the schema defaults);
 values changed with `--set` show up as differences, including values the preset file leaves at
 their defaults (`assistant.intent_scale=2` on `quick`). An assistant's `dreamer` section is its
-learner's: it holds the preset's `assistant.train_ratio` / `actor_grad` where those are set.
+learner's: it holds the preset's `assistant.train_ratio` / `imag_starts` where those are set.
 Keys a record leaves out at their neutral value (`Section.omit_at_default`) are compared at that
 value; other keys a record lacks are not counted (older artifacts predate them). The keys a
 method sets itself (its reward weights, intent head and relabelling, `training.methods`) are not

@@ -82,20 +82,10 @@ class AssistantConfig(Section):
         None, gt=0,
         description="replayed steps per env step of a Dreamer-family assistant (None: dreamer.train_ratio)",
     )
-    actor_grad: Optional[Literal["backprop", "reinforce"]] = Field(
-        None,
-        description="gradient of a Dreamer-family assistant's continuous actor: backprop through the dynamics "
-                    "or REINFORCE (None: dreamer.continuous_actor_grad)",
-    )
     imag_starts: Optional[int] = Field(
         None, gt=0,
         description="replayed posterior states that start imagination in a Dreamer-family assistant's "
                     "actor-critic update (None: dreamer.imag_starts)",
-    )
-    precision: Optional[Literal["float32", "bfloat16"]] = Field(
-        None,
-        description="training precision of a Dreamer-family assistant's learner (bfloat16: autocast, weights "
-                    "and optimiser stay float32; None: dreamer.precision)",
     )
     reward_relabel: bool = Field(
         False,
@@ -104,10 +94,9 @@ class AssistantConfig(Section):
                     "(sets dreamer.reward_relabel_head=intent; methods without both ignore it)",
     )
 
-    omit_at_default = {"partner_window": 1, "train_ratio": None,
-                       "actor_grad": None, "imag_starts": None, "precision": None,
-                       "reward_relabel": False}
+    omit_at_default = {"partner_window": 1, "train_ratio": None, "imag_starts": None, "reward_relabel": False}
     # experiments that did not become defaults: the intent head's own learning rate, and what the
     # head reads besides the model state (docs/experiments/intent-estimate.md)
-    # and a bound on every method's action (docs/experiments/assistant-safety.md, "A bounded residual")
-    retired = {"intent_lr": None, "intent_reads": "latent", "authority": 1.0}
+    # and a bound on every method's action (docs/experiments/assistant-safety.md, "A bounded residual");
+    # the learner's own actor gradient and precision (docs/benchmarks.md: REINFORCE, bfloat16)
+    retired = {"intent_lr": None, "intent_reads": "latent", "authority": 1.0, "actor_grad": None, "precision": None}

@@ -46,8 +46,7 @@ METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha
 """Config keys `Method.configure` sets from the method's row (so a record's value there is the
 method's, not a user override)."""
 
-ASSISTANT_DREAMER_KEYS = {"train_ratio": "train_ratio", "actor_grad": "continuous_actor_grad",
-                          "imag_starts": "imag_starts", "precision": "precision"}
+ASSISTANT_DREAMER_KEYS = {"train_ratio": "train_ratio", "imag_starts": "imag_starts"}
 """`assistant.<key>` -> the `dreamer.<key>` it replaces in a Dreamer-family assistant's learner
 (the `dreamer` section is shared with the populations, so the assistant's own values live here)."""
 
@@ -106,8 +105,7 @@ class Method:
     def configure(self, config: Any, intents: Sequence[str]) -> Any:
         """The root config with this method's row applied: `assistant.reward.alpha_r/alpha_a`
         set; for a Dreamer-family method, the assistant's own learner settings
-        (`assistant.train_ratio`, `assistant.actor_grad`, `assistant.imag_starts`,
-        `assistant.precision`) in its `dreamer`
+        (`assistant.train_ratio`, `assistant.imag_starts`) in its `dreamer`
         section; and with an intent head, an `intent` head over `intents` (weight `assistant.intent_scale`) appended to
         `dreamer.extra_heads`, and `dreamer.reward_relabel_head` set when `assistant.reward_relabel`
         is on and the reward has expert terms."""

@@ -277,15 +277,6 @@ def test_discrete_actions_train_with_reinforce():
     assert any(not torch.equal(a, p) for a, p in zip(before, agent.behavior.actor.parameters()))
 
 
-def test_bfloat16_precision_trains(make_agent, fill_random):
-    agent = make_agent(precision="bfloat16")
-    fill_random(agent, 20)
-    metrics = agent.train_step()
-    assert all(np.isfinite(v) for v in metrics.values())
-    actions, _ = agent.policy(_first_step(2))
-    assert actions.dtype == np.float32
-
-
 def test_config_validation():
     with pytest.raises(ValueError):
         DreamerConfig(actor_min_std=2.0, actor_max_std=1.0)

@@ -96,14 +96,16 @@ def test_errors_for_inconsistent_steps_and_too_little_data():
 
 def test_retired_replay_and_update_settings_load_at_their_former_defaults_only():
     """Records written while these were settings (at their defaults: left out of records, or, for
-    the one-valued `discrete_actor_grad`, always written) validate as before and record the same;
-    any other value names the retired key."""
+    those every record held, always written) validate as before and record the same; any other
+    value names the retired key."""
+    constants = {"discrete_actor_grad": "reinforce", "continuous_actor_grad": "backprop", "precision": "float32"}
     stored = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-              "model_updates": 1, "return_norm_scope": "all", "discrete_actor_grad": "reinforce"}
+              "model_updates": 1, "return_norm_scope": "all", **constants}
     config = DreamerConfig.model_validate(stored)
     assert config == DreamerConfig()
-    assert record(config)["discrete_actor_grad"] == "reinforce"  # the ids of runs made with it hold
-    assert not (set(stored) - {"discrete_actor_grad"}) & set(record(config))
-    for key, value in (("model_updates", 4), ("replay_recent_fraction", 0.5), ("return_norm_scope", "running")):
+    assert {k: record(config)[k] for k in constants} == constants  # the ids of runs made with them hold
+    assert not (set(stored) - set(constants)) & set(record(config))
+    for key, value in (("model_updates", 4), ("replay_recent_fraction", 0.5), ("return_norm_scope", "running"),
+                       ("continuous_actor_grad", "reinforce"), ("precision", "bfloat16")):
         with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
             DreamerConfig.model_validate({key: value})

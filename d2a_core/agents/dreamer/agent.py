@@ -16,7 +16,6 @@ its reset observation with `is_first = True`; the action chosen on the final rec
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from collections.abc import Mapping
@@ -130,11 +129,6 @@ class DreamerAgent:
 
     # --- acting
 
-    def _autocast(self) -> contextlib.AbstractContextManager:
-        return torch.autocast(
-            self.device.type, dtype=torch.bfloat16, enabled=self.config.precision == "bfloat16"
-        )
-
     def initial_state(self, batch_size: int) -> PolicyState:
         """State before the first observation of `batch_size` environments."""
         with torch.no_grad():
@@ -168,17 +162,16 @@ class DreamerAgent:
                     torch.where(first.unsqueeze(-1), fresh.action, state.action),
                 )
         rssm = self.world_model.rssm
-        with self._autocast():
-            h = rssm.step(state.latent, state.action)
-            embedding = self.world_model.embed(obs)
-            logits = rssm.posterior_logits(h, embedding)
-            feat = rssm.sample(h.float(), logits, rssm.uniform((n,), generator, self.device))
-            actor = self.behavior.actor
-            if explore:
-                noise = actor.noise((n,), generator, self.device)
-                action, _ = actor.sample(feat, noise)
-            else:
-                action = actor.mode(feat)
+        h = rssm.step(state.latent, state.action)
+        embedding = self.world_model.embed(obs)
+        logits = rssm.posterior_logits(h, embedding)
+        feat = rssm.sample(h, logits, rssm.uniform((n,), generator, self.device))
+        actor = self.behavior.actor
+        if explore:
+            noise = actor.noise((n,), generator, self.device)
+            action, _ = actor.sample(feat, noise)
+        else:
+            action = actor.mode(feat)
         new_state = PolicyState(feat, action.float())
         return self._to_env_action(new_state.action), new_state
 
@@ -255,8 +248,7 @@ class DreamerAgent:
 
         start = wm_out.observed.latent.detach().reshape(-1)
         start_continue = 1.0 - batch["is_terminal"].float().reshape(-1)
-        with self._autocast():
-            beh = self.behavior.losses(self.world_model, start, start_continue, self.train_generator)
+        beh = self.behavior.losses(self.world_model, start, start_continue, self.train_generator)
         self._check_finite({"actor/loss": beh.actor_loss, "critic/loss": beh.critic_loss}, beh.metrics)
         actor_params = list(self.behavior.actor.parameters())
         critic_params = list(self.behavior.critic.parameters())
@@ -295,8 +287,7 @@ class DreamerAgent:
             key: torch.as_tensor(value, device=self.device)
             for key, value in self.replay.sample(c.batch_size, c.batch_length).items()
         }
-        with self._autocast():
-            wm_out = self.world_model.loss(batch, self.train_generator)
+        wm_out = self.world_model.loss(batch, self.train_generator)
         self._check_finite({"wm/loss": wm_out.loss}, wm_out.metrics)
         self.model_opt.zero_grad(set_to_none=True)
         wm_out.loss.backward()

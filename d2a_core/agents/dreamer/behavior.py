@@ -1,9 +1,9 @@
 """DreamerV3 actor-critic learned in imagination: lambda-returns over the imagined horizon from
 replayed posterior states, percentile return normalisation, a two-hot critic regularised toward
 its slow EMA copy, and an actor trained by backprop through the dynamics (continuous actions,
-`continuous_actor_grad: backprop`, DreamerV3's 2023 release) or REINFORCE (discrete actions, and
-continuous ones with `continuous_actor_grad: reinforce`, as DreamerV3's 2024 release does), with an
-entropy bonus."""
+as DreamerV3's 2023 release) or REINFORCE (discrete actions), with an entropy bonus. REINFORCE for
+continuous actions (DreamerV3's 2024 release) was measured and not kept: docs/benchmarks.md,
+"Continuous actor gradient"."""
 
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ from .distributions import (
     bounded_normal_sample,
     categorical_entropy,
     normal_entropy,
-    normal_log_prob,
     sample_onehot,
     unimix_probs,
 )
@@ -163,19 +162,15 @@ class Actor(nn.Module):
         return mean
 
     def log_prob_entropy(self, feat: Latent, action: Tensor) -> tuple[Tensor, Tensor]:
-        """log pi(a | s) and the entropy: of one-hot actions (discrete), or of the unclipped
-        normal samples (continuous; see the `sample` extra of `Behavior._imagine`)."""
-        raw = self.net(feat)
-        if self.discrete:
-            probs = unimix_probs(raw, self.config.unimix)
-            return torch.log((probs * action).sum(-1)), categorical_entropy(probs)
-        mean, std = bounded_normal_params(raw, self.config.actor_min_std, self.config.actor_max_std)
-        return normal_log_prob(action, mean, std), normal_entropy(std)
+        """log pi(a | s) of one-hot actions and the entropy (discrete actions: REINFORCE)."""
+        probs = unimix_probs(self.net(feat), self.config.unimix)
+        return torch.log((probs * action).sum(-1)), categorical_entropy(probs)
 
     @property
     def reinforce(self) -> bool:
-        """Whether the actor learns by REINFORCE (else by backprop through the dynamics)."""
-        return self.discrete or self.config.continuous_actor_grad == "reinforce"
+        """Whether the actor learns by REINFORCE (discrete actions) or by backprop through the
+        dynamics (continuous ones)."""
+        return self.discrete
 
     def noise(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> Tensor:
         """Random numbers `sample` needs for a batch of leading shape `shape`."""
@@ -231,7 +226,6 @@ class Behavior(nn.Module):
         c = self.config
         horizon, n = c.imag_horizon, start.h.shape[0]
         reinforce = self.actor.reinforce
-        continuous_reinforce = reinforce and not self.actor.discrete
         noise = iter(self.actor.noise((horizon, n), generator, start.h.device))
         actor_net = self.actor.net
 
@@ -240,11 +234,7 @@ class Behavior(nn.Module):
             # the fused loop (RSSM.imagine), and the plain path detaches the state itself, so
             # the actor's objective never differentiates through its own later inputs.
             raw = actor_net.finish(first) if first is not None else actor_net(latent.detach())
-            step_noise = next(noise)
-            action, entropy = self.actor.sample_from_output(raw, step_noise)
-            if continuous_reinforce:  # REINFORCE needs the unclipped sample's log-probability
-                mean, std = bounded_normal_params(raw, c.actor_min_std, c.actor_max_std)
-                return action, {"entropy": entropy, "sample": mean + std * step_noise}
+            action, entropy = self.actor.sample_from_output(raw, next(noise))
             return action, {"entropy": entropy}
 
         reward_head, continue_head = world_model.reward_head, world_model.continue_head
@@ -305,10 +295,7 @@ class Behavior(nn.Module):
                 + c.slow_critic_reg * self.twohot.loss_from_log_probs(bins_log_probs, slow_values)
             )
             if self.actor.reinforce:
-                if self.actor.discrete:
-                    actions = imagined.actions[steps].reshape(-1, self.actor.action_size)
-                else:
-                    actions = imagined.extras["sample"][steps].reshape(-1, self.actor.action_size)
+                actions = imagined.actions[steps].reshape(-1, self.actor.action_size)
                 log_prob, entropy = self.actor.log_prob_entropy(before, actions)
                 log_probs.append(log_prob)
                 entropies.append(entropy)

@@ -77,13 +77,6 @@ class DreamerConfig(Section):
     return_norm_low: float = Field(5.0, ge=0, lt=100, description="lower percentile of the return range")
     return_norm_high: float = Field(95.0, gt=0, le=100, description="upper percentile of the return range")
     return_norm_limit: float = Field(1.0, gt=0, description="returns are divided by max(limit, hi - lo)")
-    # DreamerV3's 2023 release trains continuous actors by backprop through the dynamics; its 2024
-    # release uses REINFORCE for every action space. Backprop follows the local slope of the
-    # imagined reward, which a cliff (leaving the road) does not have until the car is over it.
-    continuous_actor_grad: Literal["backprop", "reinforce"] = Field(
-        "backprop", description="gradient for continuous actions: backprop through the dynamics or REINFORCE"
-    )
-
     # --- optimisers (Adam)
     model_lr: float = Field(1e-4, gt=0)
     actor_lr: float = Field(3e-5, gt=0)
@@ -104,17 +97,17 @@ class DreamerConfig(Section):
 
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
-    precision: Literal["float32", "bfloat16"] = Field(
-        "float32", description="matmul precision in training (bfloat16: autocast, weights and optimiser stay float32)"
-    )
 
     omit_at_default = {"reward_relabel_head": None, "terminal_weight": 1.0}
     # experiments that did not become defaults (docs/experiments/): replay weighted to the newest
     # or to terminal windows, extra world-model updates, a return scale from running trajectories
     retired = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
                "model_updates": 1, "return_norm_scope": "all"}
-    # a setting with one possible value, always recorded: kept in records for the ids made with it
-    recorded_constants = {"discrete_actor_grad": "reinforce"}
+    # settings with one possible value left, always recorded: kept in records for the ids made with
+    # them (continuous actions learn by backprop through the dynamics; training runs in float32;
+    # REINFORCE for continuous actions and bfloat16 autocast: docs/benchmarks.md)
+    recorded_constants = {"discrete_actor_grad": "reinforce", "continuous_actor_grad": "backprop",
+                          "precision": "float32"}
 
     @model_validator(mode="after")
     def _check_ranges(self) -> DreamerConfig:

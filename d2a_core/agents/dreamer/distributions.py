@@ -143,7 +143,6 @@ def onehot_mode(logits: Tensor) -> Tensor:
 #     to [-1, 1] with a straight-through gradient (the environment clips the same way).
 
 _HALF_LOG_2PI_E = 0.5 * math.log(2.0 * math.pi * math.e)
-_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 def bounded_normal_params(raw: Tensor, min_std: float, max_std: float) -> tuple[Tensor, Tensor]:
@@ -158,13 +157,6 @@ def bounded_normal_sample(mean: Tensor, std: Tensor, noise: Tensor) -> Tensor:
     """Reparameterised sample clipped to [-1, 1]; the clip passes gradients straight through."""
     action = mean + std * noise
     return action + (action.clamp(-1.0, 1.0) - action).detach()
-
-
-def normal_log_prob(sample: Tensor, mean: Tensor, std: Tensor) -> Tensor:
-    """log N(sample; mean, std) of a diagonal normal, summed over the last axis (the unclipped
-    sample: the clip of `bounded_normal_sample` is the env's action bound, not part of pi)."""
-    z = (sample - mean) / std
-    return (-0.5 * z * z - torch.log(std) - _HALF_LOG_2PI).sum(-1)
 
 
 def normal_entropy(std: Tensor) -> Tensor:
