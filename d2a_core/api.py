@@ -24,8 +24,7 @@ import numpy as np
 
 from d2a_core.artifacts import Store
 from d2a_core.errors import UsageError
-from d2a_core.pipelines.evaluate import ENV_SECTIONS
-from d2a_core.run_inputs import load_track_bundle, track_of
+from d2a_core.run_inputs import ENV_SECTIONS, load_track_bundle, track_of
 from d2a_core.sim.shared_control import blend
 
 

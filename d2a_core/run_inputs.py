@@ -20,6 +20,11 @@ if TYPE_CHECKING:
     from d2a_core.tracks.track import Track
 
 
+ENV_SECTIONS = ("env", "reward", "vehicle", "world")
+"""The config sections that define the env a run drove in: an artifact's record of these is what
+another run must match to drive the same env (evaluation, intent swap, demonstrations, drives)."""
+
+
 @dataclass
 class TrackBundle:
     """A track and its opponent replays, loaded from the store."""

@@ -40,7 +40,7 @@ from d2a_core.evaluation.safety import collision_flags
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
-from d2a_core.run_inputs import load_populations, load_track_bundle, parse_pair
+from d2a_core.run_inputs import ENV_SECTIONS, load_populations, load_track_bundle, parse_pair
 from d2a_core.training.humans import load_human
 from d2a_core.training.methods import get_method
 from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCollector
@@ -54,7 +54,6 @@ own objective (r^task + r^intent)."""
 # assistance served the intent, not only the progress.
 CRITERION = CRITERION_KEY
 SUMMARY_METRICS = (*METRICS, CRITERION)
-ENV_SECTIONS = ("env", "reward", "vehicle", "world")
 SEED_BASE = 50_000_017  # env seeds of evaluation episodes: SEED_BASE + 1000 * eval_seed + j
 
 ProgressFn = Callable[[dict[str, Any]], None]

@@ -22,13 +22,12 @@ import torch
 
 from d2a_core.artifacts import Store, content_key
 from d2a_core.config.section import record
-from d2a_core.run_inputs import TrackBundle
+from d2a_core.run_inputs import ENV_SECTIONS, TrackBundle
 from d2a_core.training.partner_window import PARTNER_SLOT
 
 KIND = "demonstrations"
 FILE = "demonstrations.npz"
 SEED_BASE = 70_000_003  # env seeds of demonstration episodes: SEED_BASE + 1000 * seed + j
-ENV_SECTIONS = ("env", "reward", "vehicle", "world")
 
 
 def drive_alone(agent: Any, make_env: Callable[[], Any], episodes: int, first_seed: int,
