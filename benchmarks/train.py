@@ -9,6 +9,11 @@ warm-up and the world-model and behaviour seconds of each update, per model widt
     python benchmarks/train.py --units 128 --deter 256 --latent 16 16 --obs-dim 98 \
         --imag-starts 256 128 256 128                                       # the `quick` model; starts
 
+Each row also gives the floating-point work of one update (torch's FLOP counter: matmuls and
+their gradients) and the GFLOP/s it achieves, and the report the machine's dense matmul GFLOP/s
+measured in the same process: their ratio, `fraction_of_matmul_peak`, is how far the update is
+from the CPU's own limit.
+
 `--loop-steps N` instead runs the real training loop (8 race envs, the `quick` model, train
 ratio 64, N env steps after a prefill) and reports the share of wall time spent simulating,
 acting (policy inference and replay writes) and learning.
@@ -86,6 +91,7 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         world.append(metrics["time/world_model_s"])
         behavior.append(metrics["time/behavior_s"])
     median = statistics.median(totals)
+    flops = update_flops(agent)
     return {
         "units": units,
         "deter": deter,
@@ -97,7 +103,41 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         "seconds_per_update_max": max(totals),
         "world_model_s_median": statistics.median(world),
         "behavior_s_median": statistics.median(behavior),
+        "gflop_per_update": flops["total"] / 1e9,
+        "gflop_world_model": flops["world_model"] / 1e9,
+        "gflop_behavior": (flops["total"] - flops["world_model"]) / 1e9,
+        "achieved_gflop_per_s": flops["total"] / 1e9 / median,
     }
+
+
+def update_flops(agent: DreamerAgent) -> dict[str, int]:
+    """Floating-point operations of one full update and of its world-model part, as torch's
+    FLOP counter counts them (matmuls and their gradients; the compiled elementwise kernels and
+    the one-hot latents' embedding-bag lookups are not counted, so this is a lower bound)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as total:
+        agent.train_step()
+    with FlopCounterMode(display=False) as world:
+        agent.world_model_update()
+    return {"total": total.get_total_flops(), "world_model": world.get_total_flops()}
+
+
+def matmul_gflops(size: int, device: str, repeats: int = 20) -> float:
+    """The machine's dense float32 matmul rate (GFLOP/s) at size x size, with the benchmark's
+    threads: the best of `repeats` timed products after a warm-up, the roof of the figure."""
+    a = torch.randn(size, size, device=device)
+    b = torch.randn(size, size, device=device)
+    for _ in range(3):
+        a @ b
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        a @ b
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - start)
+    return 2 * size**3 / best / 1e9
 
 
 class _TimedEnv:
@@ -201,6 +241,12 @@ def main(argv: list[str] | None = None) -> int:
     results = [dict(benchmark(u, args.deter or u, args.updates, args.warmup, args, starts),
                     imag_starts=starts or 1024)
                for u in args.units for starts in args.imag_starts]
+    # the roof, measured in the same process: dense matmuls at the size of the largest layers and
+    # at a size where the CPU reaches its peak
+    roof = {f"matmul_gflop_per_s_{n}": matmul_gflops(n, args.device) for n in (1024, 2048)}
+    peak = max(roof.values())
+    for row in results:
+        row["fraction_of_matmul_peak"] = row["achieved_gflop_per_s"] / peak
     report = {
         "benchmark": "dreamer_full_update",
         "batch": f"{args.batch_size}x{args.batch_length}",
@@ -213,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         "torch": torch.__version__,
         "python": platform.python_version(),
         "load_average_after": os.getloadavg(),
+        **roof,
         "results": results,
     }
     json.dump(report, sys.stdout, indent=2)
