@@ -92,6 +92,7 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         behavior.append(metrics["time/behavior_s"])
     median = statistics.median(totals)
     flops = update_flops(agent)
+    profile = phase_profile(agent, updates) if args.profile else None
     return {
         "units": units,
         "deter": deter,
@@ -107,6 +108,7 @@ def benchmark(units: int, deter: int, updates: int, warmup: int, args: argparse.
         "gflop_world_model": flops["world_model"] / 1e9,
         "gflop_behavior": (flops["total"] - flops["world_model"]) / 1e9,
         "achieved_gflop_per_s": flops["total"] / 1e9 / median,
+        **({"profile": profile} if profile else {}),
     }
 
 
@@ -138,6 +140,82 @@ def matmul_gflops(size: int, device: str, repeats: int = 20) -> float:
             torch.cuda.synchronize()
         best = min(best, time.perf_counter() - start)
     return 2 * size**3 / best / 1e9
+
+
+class _PhaseClock:
+    """Wall time of each phase of an update, by wrapping (in this process only) the calls that
+    make it: the replay sample, the world model's loss, imagination, the critic and actor terms,
+    each backward pass (in `train_step`'s order: world model, actor, critic) and each optimiser
+    step. What no wrapper covers (gradient clipping, metrics, Python between the calls) is `rest`."""
+
+    def __init__(self, agent: DreamerAgent) -> None:
+        self.seconds: dict[str, float] = {}
+        self._backwards = 0
+        self._restore: list[tuple[object, str, object]] = []
+        behavior = agent.behavior
+        self._wrap(agent.replay, "sample", "replay_sample")
+        self._wrap(agent.world_model, "loss", "world_model_forward")
+        self._wrap(behavior, "_imagine", "imagination")
+        self._wrap(behavior, "_critic_and_policy_terms", "critic_actor_terms")
+        for name, opt in agent._optimizers().items():
+            self._wrap(opt, "step", f"optimiser_{name}")
+        self._wrap(torch.autograd, "backward", None)
+
+    def _wrap(self, owner, attr: str, phase: str | None) -> None:
+        inner = getattr(owner, attr)
+        clock = self
+
+        def timed(*args, **kwargs):
+            label = phase
+            if label is None:  # backward passes come in train_step's order
+                label = ("world_model_backward", "actor_backward", "critic_backward")[clock._backwards % 3]
+                clock._backwards += 1
+            start = time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                clock.seconds[label] = clock.seconds.get(label, 0.0) + time.perf_counter() - start
+
+        self._restore.append((owner, attr, owner.__dict__.get(attr) if hasattr(owner, "__dict__") else None))
+        setattr(owner, attr, timed)
+
+    def close(self) -> None:
+        for owner, attr, previous in reversed(self._restore):
+            if previous is None:
+                delattr(owner, attr) if attr in getattr(owner, "__dict__", {}) else None
+            else:
+                setattr(owner, attr, previous)
+
+
+def phase_profile(agent: DreamerAgent, updates: int) -> dict:
+    """Seconds per update by phase (`_PhaseClock`), and the share of the update's wall time spent
+    inside torch operators (the profiler's self CPU time of all aten ops and custom autograd
+    functions) rather than in Python and dispatch between them."""
+    clock = _PhaseClock(agent)
+    try:
+        start = time.perf_counter()
+        for _ in range(updates):
+            agent.train_step()
+        wall = (time.perf_counter() - start) / updates
+    finally:
+        clock.close()
+    phases = {name: seconds / updates for name, seconds in sorted(clock.seconds.items())}
+    phases["rest"] = wall - sum(phases.values())
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        started = time.perf_counter()
+        agent.train_step()
+        profiled_wall = time.perf_counter() - started
+    ops = sum(e.self_cpu_time_total for e in prof.key_averages()) / 1e6
+    top = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)[:12]
+    return {
+        "seconds_per_update": wall,
+        "phases_s": phases,
+        "profiled_update_s": profiled_wall,
+        "operator_share": ops / profiled_wall,
+        "top_operators_s": {e.key: e.self_cpu_time_total / 1e6 for e in top},
+    }
 
 
 class _TimedEnv:
@@ -223,6 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--obs-dim", type=int, default=40)
     parser.add_argument("--action-dim", type=int, default=2)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--profile", action="store_true",
+                        help="also time each phase of an update and the share spent inside torch operators")
     parser.add_argument("--loop-steps", type=int, default=0, help="time the full training loop instead")
     parser.add_argument("--train-ratio", type=float, default=64.0, help="replayed steps per env step (loop)")
     parser.add_argument("--default-malloc", action="store_true",
