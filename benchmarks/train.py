@@ -151,13 +151,13 @@ class _PhaseClock:
     def __init__(self, agent: DreamerAgent) -> None:
         self.seconds: dict[str, float] = {}
         self._backwards = 0
-        self._restore: list[tuple[object, str, object]] = []
+        self._restore: list[tuple[object, str, dict]] = []
         behavior = agent.behavior
         self._wrap(agent.replay, "sample", "replay_sample")
         self._wrap(agent.world_model, "loss", "world_model_forward")
         self._wrap(behavior, "_imagine", "imagination")
         self._wrap(behavior, "_critic_and_policy_terms", "critic_actor_terms")
-        for name, opt in agent._optimizers().items():
+        for name, opt in (("model", agent.model_opt), ("actor", agent.actor_opt), ("critic", agent.critic_opt)):
             self._wrap(opt, "step", f"optimiser_{name}")
         self._wrap(torch.autograd, "backward", None)
 
@@ -176,15 +176,17 @@ class _PhaseClock:
             finally:
                 clock.seconds[label] = clock.seconds.get(label, 0.0) + time.perf_counter() - start
 
-        self._restore.append((owner, attr, owner.__dict__.get(attr) if hasattr(owner, "__dict__") else None))
+        # what the owner itself held: a module's function, or nothing (an instance's bound method)
+        own = {attr: vars(owner)[attr]} if attr in vars(owner) else {}
+        self._restore.append((owner, attr, own))
         setattr(owner, attr, timed)
 
     def close(self) -> None:
-        for owner, attr, previous in reversed(self._restore):
-            if previous is None:
-                delattr(owner, attr) if attr in getattr(owner, "__dict__", {}) else None
+        for owner, attr, own in reversed(self._restore):
+            if own:
+                setattr(owner, attr, own[attr])
             else:
-                setattr(owner, attr, previous)
+                delattr(owner, attr)
 
 
 def phase_profile(agent: DreamerAgent, updates: int) -> dict:

@@ -54,8 +54,7 @@ def _env_and_assistant(store: Store, spec: DriveSpec, config: Any, device: str):
     """The env (with its config record and track id) and the loaded assistant (or None)."""
     from d2a_core import api
     from d2a_core.objectives.rewards import INTENTS
-    from d2a_core.run_inputs import ENV_SECTIONS
-    from d2a_core.run_inputs import load_track_bundle, resolve_track, track_of
+    from d2a_core.run_inputs import ENV_SECTIONS, load_track_bundle, resolve_track, track_of
 
     if spec.intent not in INTENTS:
         raise UsageError(f"unknown intent {spec.intent!r}; choose from {', '.join(INTENTS)}")

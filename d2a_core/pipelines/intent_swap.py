@@ -32,10 +32,9 @@ import numpy as np
 from d2a_core.artifacts import Store, content_key
 from d2a_core.errors import UsageError
 from d2a_core.pipelines.evaluate import find_assistants, run_specs, stored_row
-from d2a_core.run_inputs import ENV_SECTIONS
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
-from d2a_core.run_inputs import load_populations, load_track_bundle, parse_pair
+from d2a_core.run_inputs import ENV_SECTIONS, load_populations, load_track_bundle, parse_pair
 from d2a_core.training.humans import load_human
 from d2a_core.training.shared_rollout import EpisodeSpec
 

@@ -3,7 +3,7 @@ DreamerV3 2023 for everything the table leaves out)."""
 
 from __future__ import annotations
 
-from typing import Any, Literal, Optional
+from typing import Any, Optional
 
 from pydantic import Field, model_validator
 
