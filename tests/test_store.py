@@ -116,6 +116,24 @@ def test_ambiguous_prefix_is_reported(store_dir):
         store.resolve(art_id[:3])  # shorter than the minimum prefix: say so
 
 
+def test_finished_finds_the_latest_whole_result_of_a_run_key(store_dir):
+    store = Store(store_dir)
+    track = store.put("track", {"t": b"track"})
+    first = store.put("evaluation", {"e": b"first"}, inputs=[track.id], labels={"run_key": "k1"})
+    second = store.put("evaluation", {"e": b"second"}, inputs=[track.id], labels={"run_key": "k1"})
+    other = store.put("evaluation", {"e": b"other"}, labels={"run_key": "k2"})
+    assert store.finished("evaluation", "k1").id == second.id
+    assert store.finished("evaluation", "k2").id == other.id
+    assert store.finished("evaluation", "k3") is None
+    assert store.finished("intent-swap", "k1") is None  # the kind is part of the question
+    # a result whose input lost its blob is not whole: the run must build it again
+    blob = store.path(track.id, "t")
+    os.chmod(blob.parent, 0o755)
+    blob.unlink()
+    assert store.finished("evaluation", "k1") is None
+    assert first.id != second.id
+
+
 def test_verify_detects_corrupted_blob_and_manifest(store_dir):
     store = Store(store_dir)
     good = store.put("track", {"t": b"good data"})

@@ -745,6 +745,12 @@ class Store:
                 found.append(art)
         return found
 
+    def finished(self, kind: str, run_key: str) -> Artifact | None:
+        """The latest whole artifact of `kind` that a run with this key stored (its `run_key`
+        label), or None: how a command finds its own earlier result instead of redoing it."""
+        done = [a for a in self.list(kind) if a.labels.get("run_key") == run_key and self.is_whole(a.id)]
+        return done[-1] if done else None
+
     def aliases_of(self, art_id: str) -> list[str]:
         return [alias for alias, target in self.refs().items() if target == art_id]
 

@@ -291,12 +291,12 @@ class _EvalRun:
 
         store = self.store
         key = self.run_key(art_id)
-        done = [a for a in store.list("evaluation") if a.labels.get("run_key") == key and store.is_whole(a.id)]
-        if done:
-            result = store.read_json(done[-1].id, "eval.json")["result"]
+        done = store.finished("evaluation", key)
+        if done is not None:
+            result = store.read_json(done.id, "eval.json")["result"]
             # the request names this evaluation again: its alias comes back to it
-            store.tag(done[-1].id, self.alias(name, seed, art_id, bool(result.get("held_out"))))
-            return dict(result, id=done[-1].id, cached=True)
+            store.tag(done.id, self.alias(name, seed, art_id, bool(result.get("held_out"))))
+            return dict(result, id=done.id, cached=True)
         unassisted = self.unassisted()
         assistant, _, trained_on, window = load_assistant(store, art_id, self.obs_space, self.act_space, self.device)
         if tuple(trained_on) != tuple(self.intents):

@@ -197,9 +197,9 @@ def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, wind
             identity = {"format": SWAP_FORMAT, "code": TRAINING_CODE_VERSION, "assistant": art_id,
                         "specs": [vars(s) for s in specs], "humans": human_ids, "env": env_record}
             key = content_key(identity)
-            done = [a for a in store.list("intent-swap") if a.labels.get("run_key") == key and store.is_whole(a.id)]
-            if done:
-                results.append(dict(store.read_json(done[-1].id, "swap.json")["result"], id=done[-1].id, cached=True))
+            done = store.finished("intent-swap", key)
+            if done is not None:
+                results.append(dict(store.read_json(done.id, "swap.json")["result"], id=done.id, cached=True))
                 continue
             if progress:
                 progress({"stage": f"{name} seed {seed}", "done": k, "total": len(found)})

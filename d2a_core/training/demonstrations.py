@@ -63,10 +63,10 @@ def expert_demonstrations(store: Store, bundle: TrackBundle, cfg: Any, experts: 
     expert_ids = [expert_id for expert_id, _ in experts]
     key = content_key({"kind": KIND, "experts": expert_ids, "episodes": episodes, "seed": seed,
                        "track": bundle.track_id, "replays": list(bundle.replay_ids), "env": env_record})
-    done = [a for a in store.list(KIND) if a.labels.get("run_key") == key and store.is_whole(a.id)]
-    if done:
-        with np.load(io.BytesIO(store.read_bytes(done[-1].id, FILE))) as stored:
-            return done[-1].id, {name: stored[name] for name in stored.files}
+    done = store.finished(KIND, key)
+    if done is not None:
+        with np.load(io.BytesIO(store.read_bytes(done.id, FILE))) as stored:
+            return done.id, {name: stored[name] for name in stored.files}
     parts = []
     for k, (_, agent) in enumerate(experts):
         generator = torch.Generator().manual_seed(seed * 1000 + k)

@@ -133,15 +133,15 @@ def cached_result(store: Store, kind: str, run_key: str, result_file: str, id_ke
     result says it was reused and which code made it (`cached_from`), so a number trained by
     other code is never returned silently. The artifact's id goes under `id_key`; `notes` names
     provenance notes (timings, kept out of the hashed files) to copy back into it."""
-    done = [a for a in store.list(kind) if a.labels.get("run_key") == run_key and store.is_whole(a.id)]
-    if not done:
+    done = store.finished(kind, run_key)
+    if done is None:
         return None
-    result = store.read_json(done[-1].id, result_file)
-    provenance = done[-1].manifest.get("provenance", {})
+    result = store.read_json(done.id, result_file)
+    provenance = done.manifest.get("provenance", {})
     result.update({k: v for k, v in provenance.get("notes", {}).items() if k in notes})
     made_by = {"training_code_version": result.get("training_code_version"),
                "created": provenance.get("created"), **provenance.get("code", {})}
-    return dict(result, **{id_key: done[-1].id}, resumed_from_env_step=result.get("resumed_from_env_step"),
+    return dict(result, **{id_key: done.id}, resumed_from_env_step=result.get("resumed_from_env_step"),
                 cached=True, cached_from=made_by)
 
 
