@@ -26,6 +26,7 @@ from d2a_core.artifacts import Store
 from d2a_core.errors import UsageError
 from d2a_core.run_inputs import ENV_SECTIONS, load_track_bundle, track_of
 from d2a_core.sim.shared_control import blend
+from d2a_core.stored_agents import load_assistant, load_human
 
 
 def _store(store: Store | str | Path | None) -> Store:
@@ -58,8 +59,6 @@ class Driver(_Stored):
 
     def __init__(self, store: Store, art, device: str = "cpu", seed: int = 0) -> None:
         import torch
-
-        from d2a_core.training.humans import load_human
 
         super().__init__(store, art)
         self._generator = torch.Generator().manual_seed(seed)
@@ -98,7 +97,6 @@ class Assistant(_Stored):
 
         import torch
 
-        from d2a_core.training.assistant import load_assistant
         from d2a_core.training.partner_window import PartnerWindow
 
         super().__init__(store, art)

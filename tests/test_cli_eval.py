@@ -85,7 +85,7 @@ class ZeroAssistant:
 def test_an_assistant_that_outputs_zeros_changes_nothing(eval_store, monkeypatch):
     """Pairing: the same specs unassisted and with a zero assistant give identical episodes."""
     zero = ZeroAssistant()
-    monkeypatch.setattr("d2a_core.training.assistant.load_assistant",
+    monkeypatch.setattr("d2a_core.pipelines.evaluate.load_assistant",
                         lambda store, ref, o, a, device="cpu": (zero, None, ("pass", "stay"), 1))
     # its own eval seed: the zero assistant's evaluation is stored under its run key, which must
     # not be the key a later real evaluation of the same assistant looks up

@@ -196,7 +196,7 @@ def test_dreamer_ails_residual_stays_within_its_bound_in_training_and_evaluation
     # the learner's own range maps onto [-0.3, 0.3]: exploring, it reaches the bound but not past it
     from d2a_core.sim.race_env import RaceEnv
     from d2a_core.tracks.sources import load_track_source
-    from d2a_core.training.assistant import load_assistant
+    from d2a_core.stored_agents import load_assistant
 
     env = RaceEnv(load_track_source("straightaway").track)
     agent, *_ = load_assistant(store, art.id, env.observation_space, env.action_space)

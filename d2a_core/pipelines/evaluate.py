@@ -41,7 +41,7 @@ from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import ENV_SECTIONS, load_populations, load_track_bundle, parse_pair
-from d2a_core.training.humans import load_human
+from d2a_core.stored_agents import load_assistant, load_human
 from d2a_core.training.methods import get_method
 from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCollector
 
@@ -287,8 +287,6 @@ class _EvalRun:
 
     def evaluate(self, name: str, seed: int, art_id: str) -> dict[str, Any]:
         """One assistant's evaluation, stored (or the stored one, `cached`)."""
-        from d2a_core.training.assistant import load_assistant
-
         store = self.store
         key = self.run_key(art_id)
         done = store.finished("evaluation", key)

@@ -35,7 +35,7 @@ from d2a_core.pipelines.evaluate import find_assistants, run_specs, stored_row
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import ENV_SECTIONS, load_populations, load_track_bundle, parse_pair
-from d2a_core.training.humans import load_human
+from d2a_core.stored_agents import load_assistant, load_human
 from d2a_core.training.shared_rollout import EpisodeSpec
 
 SWAP_FORMAT = 1
@@ -163,7 +163,6 @@ def intent_swap(store: Store, track_ref: str, pair: str, method: str = "dream2as
 def _intent_swap(store, track_ref, pair, names, seeds, humans_refs, trials, window_s, eval_seed, n_envs, device,
                  progress):
     from d2a_core.config.schema import Config
-    from d2a_core.training.assistant import load_assistant
 
     intents = parse_pair(pair)
     track = load_track_bundle(store, track_ref, EnvConfig().dt).track.name

@@ -39,21 +39,20 @@ from d2a_core.agents.dreamer.expert import ExpertFilter
 from d2a_core.artifacts import Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.section import record
-from d2a_core.errors import TrainingError, UsageError
+from d2a_core.errors import TrainingError
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
+from d2a_core.stored_agents import load_human
 from d2a_core.training.demonstrations import expert_demonstrations
-from d2a_core.training.humans import load_human
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
 from d2a_core.training.run_state import RunDir, RunProgress, cached_result, result_record
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
-from d2a_core.training.torch_files import load_torch
 
 RUN_FORMAT = 1
 ProgressFn = Callable[[dict[str, Any]], None]
@@ -281,27 +280,6 @@ def _aliases(track: str, pair: str, method: str, seed: int, final_id: str, run_i
     if not main:
         return {f"assistant-runs/{name}/side/{run_id[:12]}": run_id}
     return {f"assistants/{name}": final_id, f"assistant-runs/{name}": run_id}
-
-
-def load_assistant(store: Store, ref: str, obs_space, act_space, device: str = "cpu"):
-    """A stored assistant checkpoint as a ready-to-act agent, with its method, pair and partner
-    window: (agent, method, intents, partner_window). `obs_space` is the env's; the learner's
-    config and the window come from the artifact's recorded config."""
-    from d2a_core.config.schema import Config  # the section classes, to validate the recorded one
-
-    art = store.get(ref)
-    if art.kind != "assistant":
-        raise UsageError(f"{ref} is a {art.kind} artifact, not an assistant")
-    method = get_method(art.labels["method"])
-    intents = parse_pair(art.labels["pair"])
-    section_type = type(getattr(Config(), method.agent_section))
-    section = section_type.model_validate(art.config[method.agent_section])
-    window = int(art.config.get("assistant", {}).get("partner_window", 1))
-    agent = method.builder()(section, assistant_observation_space(obs_space, window), act_space, intents, 0, device)
-    state = load_torch(store.path(art.id, "agent.pt"), f"assistant {art.id[:12]} file 'agent.pt'", device,
-                       "the store holds a file that d2a did not write; remove the artifact or the store")
-    agent.load_state_dict(state)
-    return agent, method, intents, window
 
 
 def _episode_stats(episodes: list[dict[str, Any]], classes: int) -> dict[str, Any]:

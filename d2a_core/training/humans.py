@@ -33,7 +33,7 @@ from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
-from d2a_core.artifacts import Artifact, Store, content_key
+from d2a_core.artifacts import Store, content_key
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.schema import Config
 from d2a_core.errors import TrainingError, UsageError
@@ -41,8 +41,7 @@ from d2a_core.evaluation.criteria import (EXPERT_RULE, choose_expert, criterion_
                                           performance_fractions)
 from d2a_core.evaluation.metrics import aggregate
 from d2a_core.objectives.rewards import INTENTS
-from d2a_core.sim.env_config import EnvConfig
-from d2a_core.sim.race_env import RaceEnv, observation_names
+from d2a_core.sim.race_env import RaceEnv
 from d2a_core.run_inputs import TrackBundle, load_track_bundle
 from d2a_core.training.allocator import keep_freed_memory
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
@@ -51,7 +50,6 @@ from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
 from d2a_core.training.run_state import RunDir, RunProgress, cached_result, load_checked, result_record, save_atomic
-from d2a_core.training.torch_files import load_torch
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
@@ -71,31 +69,6 @@ def _agent_bytes(agent: DreamerAgent) -> bytes:
     buffer = io.BytesIO()
     torch.save(agent.state_dict(include_replay=False), buffer)
     return buffer.getvalue()
-
-
-def trained_env_config(art: Artifact) -> EnvConfig:
-    """The env settings a human checkpoint was trained in (its manifest's `env` section)."""
-    return EnvConfig.model_validate((art.config or {}).get("env", {}))
-
-
-def load_human(store: Store, ref: str, obs_space, act_space, device: str = "cpu") -> DreamerAgent:
-    """A stored human checkpoint as a ready-to-act agent (on `device`)."""
-    art = store.get(ref)
-    if art.kind != "human":
-        raise UsageError(f"{ref} is a {art.kind} artifact, not a human checkpoint")
-    trained = trained_env_config(art)
-    names = observation_names(trained.edge_lookahead_m)
-    if len(names) != int(np.prod(obs_space.shape)):
-        raise UsageError(
-            f"human {art.id[:12]} was trained on observations of {len(names)} values "
-            f"(env.edge_lookahead_m={trained.edge_lookahead_m}), this env gives {int(np.prod(obs_space.shape))}: "
-            "use the env settings its population was trained with (--set env.edge_lookahead_m=...)")
-    state = load_torch(store.path(art.id, "agent.pt"), f"human checkpoint {art.id[:12]} file 'agent.pt'", device,
-                       "the store holds a file that d2a did not write; remove the artifact or the store")
-    config = DreamerConfig.model_validate({**state["config"], "device": device})
-    agent = DreamerAgent(obs_space, act_space, config, seed=0)
-    agent.load_state_dict(state)
-    return agent
 
 
 def train_population(

@@ -39,8 +39,7 @@ from d2a_core.evaluation.paired import select_humans
 from d2a_core.pipelines.evaluate import panel_specs, run_specs
 from d2a_core.run_inputs import ENV_SECTIONS, load_populations, load_track_bundle, parse_pair
 from d2a_core.sim.race_env import RaceEnv
-from d2a_core.training.assistant import load_assistant
-from d2a_core.training.humans import load_human
+from d2a_core.stored_agents import load_assistant, load_human
 from intent_from_human_actions import previous_actions  # the sibling script (this folder is on sys.path)
 
 

@@ -28,7 +28,7 @@ from d2a_core.artifacts import Store
 from d2a_core.config import load
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.run_inputs import load_track_bundle
-from d2a_core.training.humans import load_human, trained_env_config
+from d2a_core.stored_agents import load_human, trained_env_config
 
 
 def outcome_of(info: dict, terminated: bool) -> str:

@@ -33,7 +33,7 @@ from d2a_core.objectives.assistant import AssistantRewardConfig as RewardConfig
 from d2a_core.pipelines.evaluate import panel_specs
 from d2a_core.training.shared_rollout import HumanDrivers, SharedCollector
 from intent_probe import load_under_test  # the sibling script (this folder is on sys.path)
-from d2a_core.training.humans import load_human
+from d2a_core.stored_agents import load_human
 
 ACCEL = 1  # index of the acceleration in the action ([steer, accel])
 SAMPLES = 4  # imagined rollouts per state and throttle (their mean is taken)
