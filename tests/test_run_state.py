@@ -32,3 +32,29 @@ def test_a_state_that_is_not_a_dict_is_refused(tmp_path):
     run.save_state([1, 2, 3])  # type: ignore[arg-type]
     with pytest.raises(IntegrityError, match="not a run state"):
         run.load_state("cpu")
+
+
+def test_training_run_keys_are_those_of_every_stored_run():
+    """Stored populations and assistants are found again by their run key: its composition must
+    never change without a new RUN_FORMAT or training-code version. The identities below are the
+    ones the two training commands have always hashed; the hex digests pin them."""
+    from types import SimpleNamespace
+
+    from d2a_core.artifacts import content_key
+    from d2a_core.training.code_version import TRAINING_CODE_VERSION
+    from d2a_core.training.run_state import RUN_FORMAT, training_run_key
+
+    bundle = SimpleNamespace(track_id="t" * 64, replay_ids=["r1", "r2"])
+    humans = training_run_key("humans", bundle, {"dreamer": {"units": 128}}, 3, intent="pass")
+    assert humans == content_key({"format": RUN_FORMAT, "kind": "humans", "code": TRAINING_CODE_VERSION,
+                                  "track": "t" * 64, "replays": ["r1", "r2"], "intent": "pass",
+                                  "config": {"dreamer": {"units": 128}}, "seed": 3})
+    assistant = training_run_key("assistant", bundle, {"assistant": {"env_steps": 60000}}, 0,
+                                 populations=["p1", "p2"], pair="pass-stay", method="dream2assist")
+    assert assistant == content_key({"format": RUN_FORMAT, "kind": "assistant", "code": TRAINING_CODE_VERSION,
+                                     "track": "t" * 64, "replays": ["r1", "r2"], "populations": ["p1", "p2"],
+                                     "pair": "pass-stay", "method": "dream2assist",
+                                     "config": {"assistant": {"env_steps": 60000}}, "seed": 0})
+    if (RUN_FORMAT, TRAINING_CODE_VERSION) == (1, 4):
+        assert humans == "c039998c8e3dc1f22115fbf5e5d21a09df1fbfe6ac0677170ca4268a7d202fac"
+        assert assistant == "e52923ca3cf7b66218f982813f1d573ed09d38394cc6d464e65b859d5a9182e4"

@@ -36,7 +36,7 @@ import torch
 from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.expert import ExpertFilter
-from d2a_core.artifacts import Store, content_key
+from d2a_core.artifacts import Store
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.section import record
 from d2a_core.errors import TrainingError
@@ -51,19 +51,10 @@ from d2a_core.training.demonstrations import expert_demonstrations
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.methods import INTENT_HEAD_NAME, Method, get_method
 from d2a_core.training.partner_window import assistant_observation_space
-from d2a_core.training.run_state import RunDir, RunProgress, cached_result, result_record
+from d2a_core.training.run_state import RUN_FORMAT, RunDir, RunProgress, cached_result, result_record, training_run_key
 from d2a_core.training.shared_rollout import ASSISTANT_TERMS, EpisodeSpec, HumanDrivers, SharedCollector
 
-RUN_FORMAT = 1
 ProgressFn = Callable[[dict[str, Any]], None]
-
-
-def _run_key(bundle: TrackBundle, population_ids: Sequence[str], pair: str, method: str,
-             config: dict[str, Any], seed: int) -> str:
-    identity = {"format": RUN_FORMAT, "kind": "assistant", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
-                "replays": bundle.replay_ids, "populations": list(population_ids), "pair": pair,
-                "method": method, "config": config, "seed": seed}
-    return content_key(identity)
 
 
 class _Timer:
@@ -103,7 +94,8 @@ def _train(store: Store, track_ref: str, pair: str, method_name: str, resolved: 
     population_ids = [pid for group in groups for pid, _ in group]
     # the sections the method depends on, as patched by the method (intent head, reward weights)
     config_record = {name: record(getattr(cfg, name)) for name in method.config_sections}
-    key = _run_key(bundle, population_ids, pair, method.name, config_record, seed)
+    key = training_run_key("assistant", bundle, config_record, seed, populations=list(population_ids), pair=pair,
+                           method=method.name)
     with RunDir(store, key).exclusive() as run:
         return _run(store, bundle, pair, intents, method, cfg, groups, population_ids, config_record, key, run,
                     seed, device, progress, move_aliases, resolved.source())

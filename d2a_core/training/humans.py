@@ -33,7 +33,7 @@ from d2a_core import mkl_on_amd
 from d2a_core.agents.dreamer import native
 from d2a_core.agents.dreamer.agent import DreamerAgent
 from d2a_core.agents.dreamer.config import DreamerConfig
-from d2a_core.artifacts import Store, content_key
+from d2a_core.artifacts import Store
 from d2a_core.config import ResolvedConfig
 from d2a_core.config.schema import Config
 from d2a_core.errors import TrainingError, UsageError
@@ -49,20 +49,14 @@ from d2a_core.training.config import HumansConfig
 from d2a_core.training.live_curve import LiveCurve
 from d2a_core.training.imperfect_fill import below_near_perfect, next_snapshot
 from d2a_core.training.rollout import Collector, evaluate
-from d2a_core.training.run_state import RunDir, RunProgress, cached_result, load_checked, result_record, save_atomic
+from d2a_core.training.run_state import (RUN_FORMAT, RunDir, RunProgress, cached_result, load_checked, result_record,
+                                         save_atomic, training_run_key)
 
 # config sections a population depends on (changing anything else does not retrain)
 SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
-RUN_FORMAT = 1
 
 
 ProgressFn = Callable[[dict[str, Any]], None]
-
-
-def _run_key(bundle: TrackBundle, intent: str, config: dict[str, Any], seed: int) -> str:
-    identity = {"format": RUN_FORMAT, "kind": "humans", "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
-                "replays": bundle.replay_ids, "intent": intent, "config": config, "seed": seed}
-    return content_key(identity)
 
 
 def _agent_bytes(agent: DreamerAgent) -> bytes:
@@ -108,7 +102,7 @@ def _train_population(store: Store, track_ref: str, intent: str, resolved: Resol
     cfg = resolved.config
     bundle = load_track_bundle(store, track_ref, cfg.env.dt)
     config_record = resolved.section(*SECTIONS)
-    key = _run_key(bundle, intent, config_record, seed)
+    key = training_run_key("humans", bundle, config_record, seed, intent=intent)
     with RunDir(store, key).exclusive() as run:
         return _run_population(store, bundle, intent, resolved, config_record, key, run, seed, device, progress,
                                move_aliases)

@@ -19,14 +19,29 @@ from typing import Any, Iterator, Optional
 
 import torch
 
-from d2a_core.artifacts import Store
+from d2a_core.artifacts import Store, content_key
 from d2a_core.artifacts.fsutil import fsync_dir, os_reason
 from d2a_core.errors import D2AError, IntegrityError, NotFoundError, StoreError, TrainingError
+from d2a_core.run_inputs import TrackBundle
+from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.torch_files import load_torch
+
+RUN_FORMAT = 1
+"""Format of a training run's key and of its saved state."""
 
 # A checked state file: this line, the sha256 of the rest, a newline, then the torch bytes.
 # Files written before the checksum (a bare torch file) still load, through the same unpickler.
 _MAGIC = b"D2A-RUN-STATE-1 "
+
+
+def training_run_key(kind: str, bundle: TrackBundle, config: dict[str, Any], seed: int, **inputs: Any) -> str:
+    """The key of a training run (`kind` "humans" or "assistant"): everything its result depends
+    on (the track and its replays, the config record, the seed, the training-code version and the
+    run's own `inputs`, e.g. its intent or its populations), hashed. A finished run is found again
+    by it, and an unfinished one resumes from `STORE/runs/<key>/`."""
+    identity = {"format": RUN_FORMAT, "kind": kind, "code": TRAINING_CODE_VERSION, "track": bundle.track_id,
+                "replays": bundle.replay_ids, "config": config, "seed": seed, **inputs}
+    return content_key(identity)
 
 
 class RunBusyError(D2AError):
