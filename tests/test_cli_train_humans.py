@@ -15,6 +15,7 @@ from d2a_core.artifacts import Store
 from d2a_core.config.schema import Config
 from d2a_core.evaluation.criteria import EXPERT_RULE, choose_expert, meets_intent
 from d2a_core.training import humans as humans_mod
+from d2a_core.training import run_state as run_state_mod
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.humans import train_population
 
@@ -100,6 +101,8 @@ def test_a_result_of_other_training_code_is_not_reused(track_store, monkeypatch)
     store = Store(track_store)
     first = train_population(store, "straightaway", "stay", resolved, seed=0)
     assert first["training_code_version"] == TRAINING_CODE_VERSION
+    # the version is read where the run key is made and where the result records it
+    monkeypatch.setattr(run_state_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION + 1)
     monkeypatch.setattr(humans_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION + 1)
     newer = train_population(store, "straightaway", "stay", resolved, seed=0)
     assert not newer["cached"] and newer["id"] != first["id"]
@@ -108,6 +111,7 @@ def test_a_result_of_other_training_code_is_not_reused(track_store, monkeypatch)
     assert store.resolve("humans/straightaway/stay") == newer["id"]
     assert {"alias": "humans/straightaway/stay", "previous": first["id"], "now": newer["id"]} in newer["aliases_moved"]
     # rerunning the first command answers from the store and points the aliases back at its result
+    monkeypatch.setattr(run_state_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION)
     monkeypatch.setattr(humans_mod, "TRAINING_CODE_VERSION", TRAINING_CODE_VERSION)
     again = train_population(store, "straightaway", "stay", resolved, seed=0)
     assert again["cached"] and again["id"] == first["id"]
