@@ -45,7 +45,8 @@ def main(store_path: str, refs: list[str]) -> None:
         cells = [cell(r["intents"][i][g]) if g in r["intents"][i] else "-" for i in intents for g in GROUPS]
         print(f"| {name} | {'yes' if r['held_out'] else 'no'} | {f1} | " + " | ".join(cells) + " |")
     print("\nEach group: progress change, the intent's criterion unassisted → assisted (pass: finished "
-          "ahead; stay: finished never ahead), collision-rate change, intervention ||a_A||; means over "
+          "ahead; stay: finished never ahead; left/right: the share of steps on that side while racing), "
+          "collision-rate change, intervention ||a_A||; means over "
           "the group's humans.")
 
 
