@@ -22,14 +22,9 @@ CRITERION_NAME = {"finished_ahead": "finished ahead", "finished_never_ahead": "n
                   "held_left": "held left", "held_right": "held right"}
 
 
-def _intents(summary: dict) -> list[str]:
-    """The pair's intents in the order of the summary (pass, stay or left, right)."""
-    seen: list[str] = []
-    for key in summary:
-        intent = key.split("/")[0]
-        if key.count("/") == 2 and intent in CRITERION_METRIC and intent not in seen:
-            seen.append(intent)
-    return sorted(seen, key=list(CRITERION_METRIC).index)
+def _intents(evaluation: dict) -> list[str]:
+    """The pair's intents in the panel's order (pass, stay or left, right)."""
+    return list(dict.fromkeys(entry["intent"] for entry in evaluation["panel"]))
 
 
 def header(intents: list[str]) -> str:
@@ -69,8 +64,8 @@ def main(store_path: str, refs: list[str]) -> None:
         run = store.get(ref)
         checkpoints = [art for art in map(store.get, run.inputs) if art.kind == "assistant"]
         for art in sorted(checkpoints, key=lambda a: a.labels["env_step"]):
-            summary = json.loads(store.path(art.id, "eval.json").read_text())["summary"]
-            intents = _intents(summary)
+            evaluation = json.loads(store.path(art.id, "eval.json").read_text())
+            summary, intents = evaluation["summary"], _intents(evaluation)
             if intents != printed:
                 print(header(intents))
                 printed = intents
