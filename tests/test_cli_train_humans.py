@@ -228,6 +228,10 @@ def test_train_humans_usage_errors(cli, track_store, tmp_path):
     assert res.code == 2 and "overtake" in res.json["error"]["message"]
     res = cli("train-humans", "--intent", "pass", "--track", "monza", *SMOKE, "--json", store=track_store)
     assert res.code == 2 and "make-track monza" in res.json["error"]["message"]
+    # the assistant's charge on its own actions has no meaning for a driver
+    res = cli("train-humans", "--intent", "pass", "--track", "straightaway", *SMOKE, "--set", "dreamer.action_cost=1",
+              "--json", store=track_store)
+    assert res.code == 2 and "dreamer.action_cost" in res.json["error"]["message"]
 
 
 def test_same_seed_and_config_give_the_same_population_id(cli, fresh_track_store, tmp_path):

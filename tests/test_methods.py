@@ -179,3 +179,25 @@ def test_registering_twice_or_without_entry_point_is_refused():
     with pytest.raises(ValueError, match="module:Class"):
         register_method(Method("test-bad-entry", False, 0.0, 0.0, ("env",), "no_colon"))
     assert "test-bad-entry" not in METHODS
+
+
+def test_exact_intervention_sets_the_learners_action_cost_for_dreamer_methods_only():
+    base = Config()
+    exact = _assistant(base, exact_intervention=True)
+    weight = base.assistant.reward.w_interv
+    for name in ("dream2assist", "dream2assist+a", "dream2assist+a-r", "dreamer"):
+        assert get_method(name).configure(exact, PAIR).dreamer.action_cost == weight
+        assert get_method(name).configure(base, PAIR).dreamer.action_cost == 0.0
+    heavier = exact.model_copy(update={"assistant": exact.assistant.model_copy(
+        update={"reward": exact.assistant.reward.model_copy(update={"w_interv": 2.5})})})
+    assert get_method("dream2assist").configure(heavier, PAIR).dreamer.action_cost == 2.5
+    assert get_method("no-rssm").configure(exact, PAIR).dreamer == base.dreamer
+    # the method sets the learner's key; set by hand it is refused, naming the assistant's key
+    direct = base.model_copy(update={"dreamer": base.dreamer.model_copy(update={"action_cost": 1.0})})
+    with pytest.raises(UsageError, match="assistant.exact_intervention"):
+        get_method("dream2assist").configure(direct, PAIR)
+    # unset, neither key is in a record: every stored run keeps its key
+    from d2a_core.config.section import record
+
+    assert "exact_intervention" not in record(base.assistant) and "action_cost" not in record(base.dreamer)
+    assert record(exact.assistant)["exact_intervention"] is True

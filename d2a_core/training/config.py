@@ -94,7 +94,14 @@ class AssistantConfig(Section):
                     "(sets dreamer.reward_relabel_head=intent; methods without both ignore it)",
     )
 
-    omit_at_default = {"partner_window": 1, "train_ratio": None, "imag_starts": None, "reward_relabel": False}
+    exact_intervention: bool = Field(
+        False,
+        description="a Dreamer-family assistant charges its intervention (-w_interv * ||a_A||) exactly in "
+                    "imagination instead of learning it through the reward head (sets dreamer.action_cost=w_interv)",
+    )
+
+    omit_at_default = {"partner_window": 1, "train_ratio": None, "imag_starts": None, "reward_relabel": False,
+                       "exact_intervention": False}
     # experiments that did not become defaults: the intent head's own learning rate, and what the
     # head reads besides the model state (docs/experiments/intent-estimate.md)
     # and a bound on every method's action (docs/experiments/assistant-safety.md, "A bounded residual");

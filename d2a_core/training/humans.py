@@ -90,6 +90,9 @@ def driver_dreamer_config(cfg: Config, device: str = "cpu") -> DreamerConfig:
     # A short run's world model must fit rare crash terminals in few updates
     # (docs/experiments/crash-blind-world-model.md, "Why left fails"); the drivers may learn faster
     # than the assistant, which shares `dreamer`.
+    if cfg.dreamer.action_cost:  # the drivers' reward charges nothing per action
+        raise UsageError(f"dreamer.action_cost={cfg.dreamer.action_cost!r}: the drivers' reward has no charge on "
+                         "their actions; it is the assistant's setting (assistant.exact_intervention)")
     hc = cfg.humans
     own = {"model_lr": hc.model_lr}
     return cfg.dreamer.model_copy(update={"device": device, **{k: v for k, v in own.items() if v is not None}})

@@ -42,7 +42,7 @@ INTENT_HEAD_NAME = "intent"
 field that carries the label (the index of the human's intent in the pair)."""
 
 METHOD_SET_KEYS = frozenset({"assistant.reward.alpha_r", "assistant.reward.alpha_a", "dreamer.extra_heads",
-                             "dreamer.reward_relabel_head"})
+                             "dreamer.reward_relabel_head", "dreamer.action_cost"})
 """Config keys `Method.configure` sets from the method's row (so a record's value there is the
 method's, not a user override)."""
 
@@ -117,12 +117,17 @@ class Method:
         if config.dreamer.reward_relabel_head is not None:
             raise UsageError(f"dreamer.reward_relabel_head={config.dreamer.reward_relabel_head!r}: the method "
                              "sets it; use assistant.reward_relabel=true")
+        if config.dreamer.action_cost:
+            raise UsageError(f"dreamer.action_cost={config.dreamer.action_cost!r}: the method sets it; use "
+                             "assistant.exact_intervention=true")
         reward = assistant.reward.model_copy(update={"alpha_r": self.alpha_r, "alpha_a": self.alpha_a})
         update: dict[str, Any] = {"assistant": assistant.model_copy(update={"reward": reward})}
         # the Dreamer learner's changes, applied to `dreamer` in one copy at the end
         learner = assistant_dreamer_overrides(assistant) if self.entry_point == DREAMER_AGENT else {}
         if dreamer_head and self.uses_experts and assistant.reward_relabel:
             learner["reward_relabel_head"] = INTENT_HEAD_NAME
+        if self.entry_point == DREAMER_AGENT and assistant.exact_intervention and reward.w_interv:
+            learner["action_cost"] = reward.w_interv
         if dreamer_head:
             heads = config.dreamer.extra_heads
             if any(head.name == INTENT_HEAD_NAME for head in heads):

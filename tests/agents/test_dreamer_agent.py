@@ -346,3 +346,28 @@ def test_a_checkpoint_holds_the_config_record_and_older_full_dumps_still_load(ma
     make_agent().load_state_dict(older)
     with pytest.raises(ConfigError, match="units"):
         make_agent(units=agent.config.units * 2).load_state_dict(state)
+
+
+def test_a_known_action_cost_is_taken_out_of_the_replayed_rewards(make_agent):
+    """With `action_cost` w the replay stores reward + w * ||previous action|| (the env charged
+    the action that led to the step; imagination charges it again exactly), per class too, and
+    nothing on an episode's first step."""
+    agent = make_agent(action_cost=0.5)
+    by_class = "reward_by_class"
+    actions = [np.array([[0.6, 0.8], [0.0, 0.0]], np.float32), np.array([[1.0, 0.0], [0.3, 0.4]], np.float32)]
+    steps = [
+        {**_first_step(2), "action": actions[0], by_class: np.zeros((2, 2), np.float32)},
+        {**_first_step(2, seed=1), "reward": np.array([-1.0, 2.0], np.float32), "is_first": np.array([False, False]),
+         "action": actions[1], by_class: np.array([[-1.0, 3.0], [2.0, 0.0]], np.float32)},
+        {**_first_step(2, seed=2), "reward": np.array([4.0, 4.0], np.float32), "is_first": np.array([False, True]),
+         "action": actions[0], by_class: np.array([[4.0, 4.0], [4.0, 4.0]], np.float32)},
+    ]
+    for step in steps:
+        agent.observe(step)
+    stored = agent.replay.data["reward"][:, :3]
+    np.testing.assert_allclose(stored, [[0.0, -1.0 + 0.5 * 1.0, 4.0 + 0.5 * 1.0], [0.0, 2.0 + 0.0, 4.0]], atol=1e-6)
+    np.testing.assert_allclose(agent.replay.data[by_class][:, 1], [[-0.5, 3.5], [2.0, 0.0]], atol=1e-6)
+    plain = make_agent()
+    for step in steps:
+        plain.observe(step)
+    np.testing.assert_allclose(plain.replay.data["reward"][:, :3], [[0.0, -1.0, 4.0], [0.0, 2.0, 4.0]])

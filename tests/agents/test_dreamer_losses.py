@@ -461,3 +461,35 @@ def test_imagined_actions_have_no_gradient_through_the_actor_input(make_agent, f
     for fused, reference in zip(fused_grads, plain_grads):
         assert reference.abs().sum() > 0
         assert torch.allclose(fused, reference, rtol=1e-4, atol=1e-6)
+
+
+def test_a_known_action_cost_is_charged_exactly_in_imagination(make_agent):
+    """`action_cost` w: each imagined action's reward is the reward head's minus w * ||a||, and
+    that charge's gradient reaches the actor: with a constant reward head, the one thing the
+    actor's loss can lower is the charge, so its gradient step shrinks the mean action (the
+    same step without the charge moves it by nothing but the entropy bonus, which is off)."""
+    torch.manual_seed(1)
+    config = make_agent(actor_entropy=0.0).config
+
+    def imagine(cost: float):
+        c = config.model_copy(update={"action_cost": cost})
+        model = _world_model_with_constant_reward(c, 1.0)
+        torch.manual_seed(3)
+        behavior = Behavior(action_size=1, discrete=False, config=c)
+        with torch.no_grad():  # a policy that pushes one way, hard
+            behavior.actor.net.out.bias.copy_(torch.tensor([2.0, 0.0]))
+        start = model.rssm.initial(64)
+        return model, behavior, start, behavior._imagine(model, start, torch.Generator().manual_seed(2))
+
+    _, _, _, (plain, plain_reward, _, _, _) = imagine(0.0)
+    model, behavior, start, (charged, charged_reward, _, _, _) = imagine(2.0)
+    assert torch.allclose(plain.actions, charged.actions)
+    expected = plain_reward - 2.0 * charged.actions.detach().norm(dim=-1)
+    assert torch.allclose(charged_reward, expected, atol=1e-5)
+
+    mean_before = behavior.actor.mode(start).mean().item()
+    optimizer = torch.optim.SGD(behavior.actor.parameters(), lr=0.5)
+    out = behavior.losses(model, start, torch.ones(64), torch.Generator().manual_seed(2))
+    out.actor_loss.backward()
+    optimizer.step()
+    assert behavior.actor.mode(start).mean().item() < mean_before - 1e-3

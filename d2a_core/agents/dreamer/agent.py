@@ -34,7 +34,7 @@ from .behavior import Behavior
 from .config import DreamerConfig
 from .latent import Latent
 from .replay import SequenceReplay
-from .world_model import WorldModel
+from .world_model import REWARD_BY_CLASS_FIELD, WorldModel
 
 _CORE_FIELDS = ("obs", "reward", "is_first", "is_terminal")
 _SHAPE_FIELDS = ("units", "layers", "deter", "stoch", "classes", "bins", "extra_heads", "learned_initial_state")
@@ -93,6 +93,9 @@ class DreamerAgent:
         self.act_generator = torch.Generator(self.device).manual_seed(seed * 3 + 2)
         self.replay = SequenceReplay(c.replay_capacity, seed * 3 + 3)
         self.updates_done = 0
+        # ||a|| of each stream's last observed action: the charge (`action_cost`) that the next
+        # reward contains (episodes start afresh after a resume, so it is not checkpointed)
+        self._last_action_norm: np.ndarray | None = None
 
     # --- optimisers
 
@@ -222,7 +225,22 @@ class DreamerAgent:
         for key, value in transition.items():
             if key not in step:
                 step[key] = np.asarray(value)
+        if self.config.action_cost:
+            self._take_out_action_charge(step)
         self.replay.add(step)
+
+    def _take_out_action_charge(self, step: dict[str, np.ndarray]) -> None:
+        """Add back to the step's reward (and its per-class rewards) the charge -w * ||a|| of the
+        stream's previous action, which imagination adds exactly (`DreamerConfig.action_cost`).
+        The first step of an episode pays no charge (no action led to it)."""
+        n = step["reward"].shape[0]
+        last = self._last_action_norm if self._last_action_norm is not None else np.zeros(n)
+        charge = self.config.action_cost * np.where(step["is_first"], 0.0, last)
+        step["reward"] = (step["reward"] + charge).astype(np.float32)
+        if REWARD_BY_CLASS_FIELD in step:
+            by_class = np.asarray(step[REWARD_BY_CLASS_FIELD])
+            step[REWARD_BY_CLASS_FIELD] = (by_class + charge.reshape(n, *([1] * (by_class.ndim - 1)))).astype(by_class.dtype)
+        self._last_action_norm = np.linalg.norm(step["action"].astype(np.float64), axis=-1)
 
     def updates_due(self, env_steps: int) -> int:
         """Updates to run now so that, after `prefill_steps`, replayed steps per environment

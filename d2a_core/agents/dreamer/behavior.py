@@ -267,6 +267,8 @@ class Behavior(nn.Module):
                     conts.append((continue_head.finish(pres[2]).squeeze(-1) > 0).float())
         values = self.twohot.mean(torch.cat([logits for _, _, logits in critic_chunks])).view(horizon + 1, n)
         reward = torch.cat(rewards).view(horizon + 1, n)[1:]
+        if c.action_cost:  # the known charge on each imagined action, exact (its gradient included)
+            reward = reward - c.action_cost * torch.linalg.vector_norm(imagined.actions, dim=-1)
         cont = torch.cat(conts).view(horizon + 1, n)[1:]
         return imagined, reward, cont, values, critic_chunks
 

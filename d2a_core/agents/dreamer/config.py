@@ -61,6 +61,16 @@ class DreamerConfig(Section):
         None, description="extra head whose current argmax picks each replayed step's reward among "
                           "the stored rewards per class (None: the stored reward)"
     )
+    # A charge on each action that the reward contains and whose form is known (the assistant's
+    # intervention term, -w * ||a||_2): learnt through the reward head, which reads the next model
+    # state, the charge of one action is lost in the rewards around it and imagination pays no
+    # gradient for it. With a weight here the replay stores rewards with the charge taken out,
+    # the reward head learns the rest, and imagination charges each imagined action exactly.
+    action_cost: float = Field(
+        0.0, ge=0, description="weight w of a charge -w * ||a||_2 on each action (internal units) that the "
+                               "env's reward contains: taken out of the replayed rewards and added exactly "
+                               "in imagination (0: none; the assistant sets it, see assistant.exact_intervention)"
+    )
 
     # --- behaviour
     imag_horizon: int = Field(15, ge=1)
@@ -98,7 +108,7 @@ class DreamerConfig(Section):
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
 
-    omit_at_default = {"reward_relabel_head": None, "terminal_weight": 1.0}
+    omit_at_default = {"reward_relabel_head": None, "terminal_weight": 1.0, "action_cost": 0.0}
     # experiments that did not become defaults (docs/experiments/): replay weighted to the newest
     # or to terminal windows, extra world-model updates, a return scale from running trajectories
     retired = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
