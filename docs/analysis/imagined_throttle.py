@@ -29,7 +29,7 @@ import torch
 from d2a_core import api
 from d2a_core.agents.dreamer.distributions import symexp
 from d2a_core.sim.race_env import OPPONENT_FIELDS, PARTNER_FIELDS
-from d2a_core.sim.shared_control import blend
+from assisted_steps import assisted_steps  # the sibling module (this folder is on sys.path)
 
 OFFSETS = (-0.6, -0.3, -0.15, 0.0, 0.15, 0.3)
 CLOSING_M = (-25.0, -3.0)
@@ -59,33 +59,20 @@ def imagined(agent, latent, horizon: int, samples: int, ds_index: int, generator
 
 
 def probe_human(assistant: api.Assistant, human: api.Driver, episodes: int, horizon: int, samples: int) -> dict:
-    env = assistant.make_env(human.intent)
+    size = assistant.observation_space.shape[0]
     # the opponent block sits before the partner slot at the end of the observation
-    ds_index = env.observation_space.shape[0] - len(PARTNER_FIELDS) - len(OPPONENT_FIELDS) + OPPONENT_FIELDS.index("ds")
+    ds_index = size - len(PARTNER_FIELDS) - len(OPPONENT_FIELDS) + OPPONENT_FIELDS.index("ds")
     generator = torch.Generator().manual_seed(0)
     returns, ends, throttles, read_as = [], [], [], []
-    for seed in range(episodes):
-        obs, info = env.reset(seed=50_000 + seed)
-        human.reset()
-        assistant.reset()
-        a_assist, done = np.zeros(2, np.float32), False
-        while not done:
-            a_human = human.act(api.human_view(obs, a_assist))
-            a_assist = assistant.act(obs)
-            ds = float(obs[ds_index])
-            if CLOSING_M[0] <= ds <= CLOSING_M[1]:
-                out = imagined(assistant._agent, assistant._state.latent, horizon, samples, ds_index, generator)
-                returns.append(out["return"] - out["return"][OFFSETS.index(0.0)])
-                ends.append(out["ds_end"])
-                throttles.append(float(a_assist[1]))
-                belief = assistant.intent() or {}
-                read_as.append(float(max(belief, key=belief.get) == human.intent) if belief else np.nan)
-            executed = blend(a_human, a_assist)
-            human.executed(executed)
-            env.unwrapped.set_partner_action(a_human)
-            obs, _, terminated, truncated, info = env.step(executed)
-            done = terminated or truncated
-    env.close()
+    for obs, a_assist in assisted_steps(assistant, human, episodes):
+        ds = float(obs[ds_index])
+        if CLOSING_M[0] <= ds <= CLOSING_M[1]:
+            out = imagined(assistant._agent, assistant._state.latent, horizon, samples, ds_index, generator)
+            returns.append(out["return"] - out["return"][OFFSETS.index(0.0)])
+            ends.append(out["ds_end"])
+            throttles.append(float(a_assist[1]))
+            belief = assistant.intent() or {}
+            read_as.append(float(max(belief, key=belief.get) == human.intent) if belief else np.nan)
     if not returns:
         return {}
     mean_return = np.mean(returns, 0)

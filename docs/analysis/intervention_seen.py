@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from d2a_core import api
-from d2a_core.sim.shared_control import blend
+from assisted_steps import assisted_steps  # the sibling module (this folder is on sys.path)
 
 
 @torch.no_grad()
@@ -50,28 +50,14 @@ def one_step_rewards(agent, latent, action: np.ndarray, samples: int, generator:
 
 
 def probe_human(assistant: api.Assistant, human: api.Driver, episodes: int, samples: int, w_interv: float) -> dict:
-    env = assistant.make_env(human.intent)
     generator = torch.Generator().manual_seed(0)
     norms, steer_norms, predicted, predicted_steer = [], [], [], []
-    for seed in range(episodes):
-        obs, info = env.reset(seed=50_000 + seed)
-        human.reset()
-        assistant.reset()
-        a_assist, done = np.zeros(2, np.float32), False
-        while not done:
-            a_human = human.act(api.human_view(obs, a_assist))
-            a_assist = assistant.act(obs)
-            r = one_step_rewards(assistant._agent, assistant._state.latent, a_assist, samples, generator)
-            norms.append(float(np.linalg.norm(a_assist)))
-            steer_norms.append(float(np.linalg.norm(a_assist) - abs(a_assist[1])))
-            predicted.append(float(r[0] - r[1]))
-            predicted_steer.append(float(r[0] - r[2]))
-            executed = blend(a_human, a_assist)
-            human.executed(executed)
-            env.unwrapped.set_partner_action(a_human)
-            obs, _, terminated, truncated, info = env.step(executed)
-            done = terminated or truncated
-    env.close()
+    for _, a_assist in assisted_steps(assistant, human, episodes):
+        r = one_step_rewards(assistant._agent, assistant._state.latent, a_assist, samples, generator)
+        norms.append(float(np.linalg.norm(a_assist)))
+        steer_norms.append(float(np.linalg.norm(a_assist) - abs(a_assist[1])))
+        predicted.append(float(r[0] - r[1]))
+        predicted_steer.append(float(r[0] - r[2]))
     norms, predicted = np.asarray(norms), np.asarray(predicted)
     slope = float(np.polyfit(norms, predicted, 1)[0]) if norms.std() > 1e-6 else float("nan")
     return {"steps": len(norms), "norm": float(norms.mean()), "charge": -w_interv * float(norms.mean()),
