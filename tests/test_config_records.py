@@ -16,10 +16,21 @@ from d2a_core.config.schema import Config
 
 STORED = json.loads((Path(__file__).parent / "data" / "config_records_before_retirement.json").read_text())
 
+# Deliberate changes of a preset's behaviour since those records: new runs get new keys, while the
+# stored artifacts keep theirs (their records still validate, below).
+CHANGED_SINCE = {"quick": {"assistant": {"exact_intervention": True}}}
+
+
+def _merged(record: dict, changes: dict) -> dict:
+    out = dict(record)
+    for key, value in changes.items():
+        out[key] = _merged(out.get(key, {}), value) if isinstance(value, dict) else value
+    return out
+
 
 @pytest.mark.parametrize("preset", sorted(STORED))
 def test_every_presets_record_is_what_stored_runs_hold(preset):
-    assert resolve_config(Config, preset).record() == STORED[preset]
+    assert resolve_config(Config, preset).record() == _merged(STORED[preset], CHANGED_SINCE.get(preset, {}))
 
 
 @pytest.mark.parametrize("preset", sorted(STORED))

@@ -9,7 +9,7 @@ from d2a_core.report.presets import describe
 
 
 QUICK_ASSISTANT = {"env_steps": 60000, "partner_window": 16, "human_explore": False, "reward_relabel": True,
-                   "train_ratio": 128.0}
+                   "train_ratio": 128.0, "exact_intervention": True}
 
 
 def test_a_value_the_preset_file_leaves_at_its_default_is_named():
@@ -25,10 +25,12 @@ def test_method_keys_and_keys_the_record_lacks_are_not_differences():
 
 
 def test_a_key_left_out_at_its_neutral_value_is_compared_at_that_value():
-    """A record omits later additions at their neutral value (partner_window 1, stored rewards), so
-    an assistant made before `quick` set them reads as quick except those, not as quick."""
-    record = {"assistant": {"env_steps": 60000, "human_explore": False, "train_ratio": 128.0}}
-    assert describe(record) == "quick, except assistant.partner_window=1, assistant.reward_relabel=false"
+    """A record omits later additions at their neutral value (partner_window 1, stored rewards, the
+    learnt intervention charge), so an assistant made before `quick` set them reads as quick except
+    those, not as quick."""
+    record = {"assistant": {"env_steps": 60000, "checkpoints": 6, "human_explore": False, "train_ratio": 128.0}}
+    assert describe(record) == ("quick, except assistant.exact_intervention=false, assistant.partner_window=1, "
+                                "assistant.reward_relabel=false")
 
 
 def test_an_assistants_learner_value_set_in_its_assistant_section_is_named_once():
