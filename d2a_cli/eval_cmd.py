@@ -45,7 +45,7 @@ def eval_assistants(
     """Paired evaluation: each human unassisted and with each assistant, on the same episodes."""
     # imported here, not at module level: it pulls in torch, which every other `d2a` command
     # would then pay for at start-up (seconds)
-    from d2a_core.evaluation.safety import COLLISION_MARGIN
+    from d2a_core.evaluation.safety import DESCRIBED, SAFETY_MARGIN
     from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
@@ -71,16 +71,16 @@ def eval_assistants(
                                              else f"{e['intents'][intent]['intent_f1']:.3f}" for e in shown))
                 out_console.print(table)
         for e in r["evaluations"]:
-            for flag in e.get("collision_flags", []):
+            for flag in e.get("safety_flags", []):
                 out_console.print(
-                    f"[bold red]safety:[/] {_title(e)} raises the collision rate of the {flag['intent']} "
-                    f"{flag['group'].replace('_', '-')} humans by {flag['collision_change']:+.2f} (more than "
-                    f"{COLLISION_MARGIN:.2f})", highlight=False)
+                    f"[bold red]safety:[/] {_title(e)} raises the {DESCRIBED[flag['metric']]} of the {flag['intent']} "
+                    f"{flag['group'].replace('_', '-')} humans by {flag['change']:+.2f} (more than "
+                    f"{SAFETY_MARGIN:.2f})", highlight=False)
 
     run.emit(result, render)
 
 
-_SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate",
+_SHORT = {"progress_m": "progress (m)", "return": "return", "collision": "collision rate", "off_track": "off-track rate",
           "intervention": "intervention", "mean_speed_m_s": "mean speed (m/s)"}
 
 def _title(e: dict[str, Any]) -> str:

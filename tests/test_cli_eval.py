@@ -118,10 +118,11 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
             assert (block["intent_f1"] is None) == (e["method"] == "dreamer")
         groups = {(h["intent"], h["group"]) for h in e["humans"]}
         assert ("pass", "imperfect") in groups and ("stay", "near_perfect") in groups
-        # the safety rule: exactly the groups whose collision rate rose by more than 0.05 are flagged
-        rose = {(i, g) for i, b in e["intents"].items() for g in ("imperfect", "near_perfect")
-                if g in b and b[g]["collision"]["mean"] > 0.05 + 1e-9}
-        assert {(f["intent"], f["group"]) for f in e["collision_flags"]} == rose
+        # the safety rule: exactly the groups whose collision or off-track rate rose by more than
+        # 0.05 are flagged
+        rose = {(i, g, m) for i, b in e["intents"].items() for g in ("imperfect", "near_perfect")
+                for m in ("collision", "off_track") if g in b and b[g][m]["mean"] > 0.05 + 1e-9}
+        assert {(f["intent"], f["group"], f["metric"]) for f in e["safety_flags"]} == rose
         episodes = store.read_json(e["id"], "eval.json")["unassisted"]
         for i, h in enumerate(e["humans"]):
             assert set(h) >= {"id", "intent", "group", "unassisted", "assisted", "delta"}
@@ -131,6 +132,7 @@ def test_eval_reports_the_paper_table_and_stores_each_evaluation(cli, eval_store
             key = {"pass": "finished_ahead", "stay": "finished_never_ahead"}[h["intent"]]
             mine = [r for r in episodes if r["human"] == i]
             assert h["unassisted"][CRITERION] == pytest.approx(np.mean([r[key] for r in mine]), abs=1e-6)
+            assert h["unassisted"]["off_track"] == pytest.approx(np.mean([r["off_track"] for r in mine]), abs=1e-6)
         art = store.get(e["id"])
         assert art.kind == "evaluation" and e["assistant"] in art.inputs
         assert set(h["id"] for h in e["humans"]) <= set(art.inputs)

@@ -36,7 +36,7 @@ from d2a_core.artifacts import Store, content_key
 from d2a_core.errors import NotFoundError, UsageError
 from d2a_core.evaluation.criteria import CRITERION_KEY, criterion_value
 from d2a_core.evaluation.paired import TestHuman, f1_macro, f1_of_class, intent_confusion, select_humans
-from d2a_core.evaluation.safety import collision_flags
+from d2a_core.evaluation.safety import safety_flags
 from d2a_core.objectives.assistant import AssistantRewardConfig
 from d2a_core.sim.race_env import EnvConfig, RaceEnv
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
@@ -45,10 +45,11 @@ from d2a_core.stored_agents import load_assistant, load_human
 from d2a_core.training.methods import get_method
 from d2a_core.training.shared_rollout import EpisodeSpec, HumanDrivers, SharedCollector
 
-EVAL_FORMAT = 1
-METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s")
+EVAL_FORMAT = 2  # 2: the off-track rate is recorded beside the collision rate
+METRICS = ("progress_m", "return", "collision", "off_track", "intervention", "mean_speed_m_s")
 """The paper's Table 1 metrics, per human: means over its episodes; `return` is under the human's
-own objective (r^task + r^intent)."""
+own objective (r^task + r^intent). `off_track` (not in the paper's table) is the share of
+episodes that ended off the road: with `collision`, what the safety rule bounds."""
 # ... and the human's own intent criterion (`evaluation.criteria.criterion_value`: finished ahead
 # for pass, finished never ahead for stay, the side share for left/right), so a table shows whether
 # assistance served the intent, not only the progress.
@@ -227,7 +228,7 @@ def evaluate(store: Store, track_ref: str, pair: str, method: str | None = None,
         result = _evaluate(store, track_ref, pair, [method or "dream2assist", *baselines], seeds, humans, episodes,
                            eval_seed, n_envs, device, progress, assistants)
     for evaluation in result["evaluations"]:  # read off the stored numbers, so stored results get it too
-        evaluation["collision_flags"] = collision_flags(evaluation)
+        evaluation["safety_flags"] = safety_flags(evaluation)
     return result
 
 

@@ -17,13 +17,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from d2a_core.evaluation.safety import COLLISION_MARGIN
+from d2a_core.evaluation.safety import SAFETY_MARGIN
 from d2a_core.report.figures import Plot
 from d2a_core.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, CONFIDENCE, MIN_SEEDS
 from d2a_core.report.tables import DECIMALS, HEADERS, HIGHER_IS_BETTER, SWAP_METRICS
 
 UP, DOWN, IMPROVED = "↑", "↓", "▲"
-UNSAFE = "⚠ unsafe"  # a collision change that breaks the safety rule (`evaluation.safety`)
+UNSAFE = "⚠ unsafe"  # a collision or off-track change that breaks the safety rule (`evaluation.safety`)
 SHORT = 12
 
 
@@ -130,7 +130,7 @@ def change_blocks(tables: Sequence[dict[str, Any]]) -> list[Block]:
         if t.get("unsafe"):
             blocks.append(Block("p", (
                 f"{UNSAFE} **Safety rule broken** by {', '.join(names[m] for m in t['unsafe'])}: with assistance these "
-                f"humans collide more often than unassisted by more than {COLLISION_MARGIN:.2f} (a share of "
+                f"humans collide or leave the track more often than unassisted by more than {SAFETY_MARGIN:.2f} (a share of "
                 "episodes), on the mean over every (training seed, human) value.")))
     return blocks
 

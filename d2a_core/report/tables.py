@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from d2a_core.evaluation.criteria import CRITERION_KEY
-from d2a_core.evaluation.safety import breaks_collision_rule
+from d2a_core.evaluation.safety import SAFETY_METRICS, breaks_rule
 from d2a_core.report import paper
 from d2a_core.report.collect import Collected, Evaluation, method_key
 from d2a_core.report.stats import MIN_SEEDS, bootstrap_ci, ci_text, iqm, mean_std
@@ -36,13 +36,13 @@ from d2a_core.report.stats import MIN_SEEDS, bootstrap_ci, ci_text, iqm, mean_st
 INTENT_MET = CRITERION_KEY
 """`d2a eval`'s per-human intent criterion; evaluations made before it was recorded have no value,
 and their cells say so."""
-METRICS = ("progress_m", "return", "collision", "intervention", "mean_speed_m_s", INTENT_MET)
-HIGHER_IS_BETTER = {"progress_m": True, "return": True, "collision": False, "intervention": False,
+METRICS = ("progress_m", "return", "collision", "off_track", "intervention", "mean_speed_m_s", INTENT_MET)
+HIGHER_IS_BETTER = {"progress_m": True, "return": True, "collision": False, "off_track": False, "intervention": False,
                     "mean_speed_m_s": True, INTENT_MET: True}
-DECIMALS = {"progress_m": 1, "return": 1, "collision": 2, "intervention": 2, "mean_speed_m_s": 1, INTENT_MET: 2}
-HEADERS = {"progress_m": "Progress (m)", "return": "Return", "collision": "Collisions",
+DECIMALS = {"progress_m": 1, "return": 1, "collision": 2, "off_track": 2, "intervention": 2, "mean_speed_m_s": 1, INTENT_MET: 2}
+HEADERS = {"progress_m": "Progress (m)", "return": "Return", "collision": "Collisions", "off_track": "Off track",
            "intervention": "Interventions", "mean_speed_m_s": "Speed (m/s)", INTENT_MET: "Intent met"}
-MARKED = ("progress_m", "return", "collision", "mean_speed_m_s", INTENT_MET)
+MARKED = ("progress_m", "return", "collision", "off_track", "mean_speed_m_s", INTENT_MET)
 """Metrics marked (blue, bold) as the paper marks its own; interventions it leaves unmarked."""
 GROUPS = ("imperfect", "near_perfect")
 SWAP_METRICS = ("progress_m", "collision", "intervention", "mean_speed_m_s")
@@ -146,7 +146,8 @@ def _change_table(data: Collected, track: str, pair: str, intent: str, group: st
             cell["paper"] = ref
             cells[m] = cell
         # the safety rule (`evaluation.safety`), on the mean over every (training seed, human) value
-        cells["collision"]["unsafe"] = ran and breaks_collision_rule(cells["collision"]["mean"])
+        for m in SAFETY_METRICS:
+            cells[m]["unsafe"] = ran and breaks_rule(cells[m]["mean"])
         rows.append({"method": method, "name": paper.paper_name(method), "ran": ran,
                      "seeds": sorted({e.seed for e in by_method.get(method, []) if e.id in sources}),
                      "cells": cells, "sources": sources})
@@ -165,7 +166,7 @@ def _change_table(data: Collected, track: str, pair: str, intent: str, group: st
         "preset": {"assistants": sorted({e.preset for e in used_evaluations}),
                    "humans": _humans_preset(data, used_evaluations)},
         "rows": rows, "sources": sorted({e.id for e in used_evaluations}),
-        "unsafe": [r["method"] for r in rows if r["ran"] and r["cells"]["collision"]["unsafe"]],
+        "unsafe": [r["method"] for r in rows if r["ran"] and any(r["cells"][m]["unsafe"] for m in SAFETY_METRICS)],
     }
 
 

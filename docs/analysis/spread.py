@@ -1,7 +1,9 @@
 """One setting's `d2a eval` results across population builds and assistant seeds, against the
 pass-stay bars of the safety work: every run's intent F1 >= 0.90 and their mean >= 0.95; the
 weak (imperfect) drivers of each intent gain progress and their intent's criterion on the mean
-over runs; no group's collision rate up by more than 0.05 on the mean over runs.
+over runs; no group's collision rate, nor its off-track rate, up by more than 0.05 on the mean
+over runs (the safety rule, `d2a_core.evaluation.safety`). The off-track rate is read from the
+episode rows, so evaluations stored before `d2a eval` recorded it are covered too.
 
     python docs/analysis/spread.py SETTING=STORE:EVAL_ID [SETTING=STORE:EVAL_ID ...]
 
@@ -17,13 +19,24 @@ from collections import defaultdict
 from statistics import mean
 
 from d2a_core.artifacts import Store
+from d2a_core.evaluation.safety import SAFETY_MARGIN
 from d2a_core.pipelines.evaluate import CRITERION
 from eval_table import GROUPS  # this script's folder is on the path when it runs
-F1_EACH, F1_MEAN, COLLISION_LIMIT = 0.90, 0.95, 0.05
+F1_EACH, F1_MEAN = 0.90, 0.95
 
 
-def figures(result: dict) -> dict:
-    """Per intent and group: progress change, criterion before / after, collision change, ||a_A||."""
+def off_track_change(stored: dict, intent: str, group: str) -> float:
+    """The group's mean per-human change in the share of episodes that ended off the track."""
+    humans = [k for k, h in enumerate(stored["result"]["humans"]) if h["intent"] == intent and h["group"] == group]
+    share = {kind: {k: mean(r["off_track"] for r in stored[kind] if r["human"] == k) for k in humans}
+             for kind in ("unassisted", "assisted")}
+    return mean(share["assisted"][k] - share["unassisted"][k] for k in humans)
+
+
+def figures(stored: dict) -> dict:
+    """Per intent and group: progress change, criterion before / after, collision and off-track
+    changes, ||a_A||."""
+    result = stored["result"]
     out = {"f1": result["intent_f1"]}
     for intent, blocks in result["intents"].items():
         for group in GROUPS:
@@ -34,6 +47,7 @@ def figures(result: dict) -> dict:
             out[(intent, group)] = {"progress": b["progress_m"]["mean"], "before": before,
                                     "after": before + b[CRITERION]["mean"],
                                     "collision": b["collision"]["mean"],
+                                    "off_track": off_track_change(stored, intent, group),
                                     "intervention": b["intervention"]["mean"]}
     return out
 
@@ -45,7 +59,7 @@ def f1_text(values: list[float | None]) -> str:
 
 def cell(g: dict) -> str:
     return (f"{g['progress']:+.0f} m, {g['before']:.2f} → {g['after']:.2f}, {g['collision']:+.2f}, "
-            f"{g['intervention']:.2f}")
+            f"{g['off_track']:+.2f}, {g['intervention']:.2f}")
 
 
 def misses(runs: list[dict], keys: list[tuple[str, str]]) -> list[str]:
@@ -63,9 +77,10 @@ def misses(runs: list[dict], keys: list[tuple[str, str]]) -> list[str]:
                 out.append(f"{intent} weak: no progress gain")
             if mean(g["after"] - g["before"] for g in gs) <= 0:
                 out.append(f"{intent} weak: criterion not gained")
-        collision = mean(g["collision"] for g in gs)
-        if collision > COLLISION_LIMIT:
-            out.append(f"{intent} {group.replace('_', '-')}: collisions {collision:+.2f}")
+        for metric, name in (("collision", "collisions"), ("off_track", "off track")):
+            change = mean(g[metric] for g in gs)
+            if round(change, 6) > SAFETY_MARGIN:
+                out.append(f"{intent} {group.replace('_', '-')}: {name} {change:+.2f}")
     return out
 
 
@@ -77,8 +92,9 @@ def main(specs: list[str]) -> None:
         setting, _, where = spec.partition("=")
         store_path, _, ref = where.rpartition(":")
         store = Store(store_path)
-        result = store.read_json(store.resolve(ref), "eval.json")["result"]
-        f = figures(result)
+        stored = store.read_json(store.resolve(ref), "eval.json")
+        result = stored["result"]
+        f = figures(stored)
         keys = keys or [k for k in f if k != "f1"]
         by_setting[setting].append(f)
         rows.append((setting, f"seed {result['seed']} `{result['assistant'][:12]}` ({store_path})", f))
@@ -96,7 +112,7 @@ def main(specs: list[str]) -> None:
         print(f"| {setting} | {len(runs)} | {f1_text([r['f1'] for r in runs])} | "
               + " | ".join(cell(means[k]) for k in keys) + f" | {'; '.join(missed) or 'none'} |")
     print("\nEach group: progress change, the intent's criterion unassisted → assisted (pass: finished "
-          "ahead; stay: finished never ahead), collision-rate change, intervention ||a_A||; means over "
+          "ahead; stay: finished never ahead), collision-rate change, off-track-rate change, intervention ||a_A||; means over "
           "the group's humans, and in the second table over the setting's runs.")
 
 

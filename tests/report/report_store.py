@@ -67,11 +67,14 @@ def delta(method: str, seed: int, group: str, number: int, intent: str) -> dict[
     # dreamer's evaluation predates the intent criterion (no `intent_criterion`), as old stores do
     if method == "dreamer":
         return {"progress_m": -5.0, "return": -1.0, "collision": 0.0, "intervention": 0.02, "mean_speed_m_s": -0.5}
-    if group == "near_perfect":  # the assistant makes these collide more: the safety rule is broken
-        return {"progress_m": -1.0, "return": 0.5, "collision": 0.1, "intervention": 0.2, "mean_speed_m_s": 0.1,
+    # ... and the off-track rate, as evaluations before it was recorded
+    if group == "near_perfect":  # the assistant makes these crash more: the safety rule is broken
+        # pass: by colliding more; stay: by leaving the track more
+        return {"progress_m": -1.0, "return": 0.5, "collision": 0.1 if intent == "pass" else 0.0,
+                "off_track": 0.2 if intent == "stay" else 0.0, "intervention": 0.2, "mean_speed_m_s": 0.1,
                 "intent_criterion": -0.5}
     sign = 1.0 if intent == "pass" else 0.5
-    return {"progress_m": sign * (10.0 * seed + number), "return": 2.0 + seed, "collision": -0.1,
+    return {"progress_m": sign * (10.0 * seed + number), "return": 2.0 + seed, "collision": -0.1, "off_track": -0.05,
             "intervention": 0.3, "mean_speed_m_s": 1.0 + 0.1 * number, "intent_criterion": 0.1 * seed}
 
 

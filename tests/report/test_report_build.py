@@ -81,6 +81,13 @@ def test_the_change_table_has_the_hand_computed_cells(built):
     # the safety rule: collisions up by 0.1 > 0.05 on the near-perfect humans, down on the imperfect ones
     assert near["unsafe"] == ["dream2assist"] and _row(near, "dream2assist")["cells"]["collision"]["unsafe"]
     assert table["unsafe"] == [] and not _row(table, "dream2assist")["cells"]["collision"]["unsafe"]
+    # ... and leaving the track more often breaks it too (stay near-perfect: +0.2 off track, no collision)
+    stay_near = _table(result, "change/straightaway/pass-stay/stay/near_perfect")
+    cells = _row(stay_near, "dream2assist")["cells"]
+    assert stay_near["unsafe"] == ["dream2assist"] and cells["off_track"]["unsafe"] and not cells["collision"]["unsafe"]
+    # dreamer's evaluation predates the off-track rate: no value, nothing flagged
+    assert _row(stay_near, "dreamer")["cells"]["off_track"]["mean"] is None
+    assert _row(table, "dream2assist")["cells"]["off_track"]["improved"]
 
 
 def test_f1_and_intent_swap_tables(built):
