@@ -302,31 +302,6 @@ def test_terminal_fit_metrics_measure_the_heads_on_the_steps_that_end_episodes(m
     assert none.metrics["wm/terminal_steps"].item() == 0.0 and none.metrics["wm/terminal_continue"].item() == 0.0
 
 
-def test_terminal_weight_scales_the_reward_and_continue_losses_of_terminal_steps_only(make_agent):
-    """`terminal_weight` w multiplies the reward and continue losses at `is_terminal` steps by w
-    and leaves every other step and term as DreamerV3 has it."""
-    batch = _episodes_of_six()
-    config = make_agent(obs_size=3).config
-
-    def losses(weight: float, terminal: torch.Tensor) -> dict[str, float]:
-        torch.manual_seed(0)
-        model = WorldModel(obs_size=3, action_size=2, config=config.model_copy(update={"terminal_weight": weight}))
-        out = model.loss({**batch, "is_terminal": terminal}, torch.Generator().manual_seed(0))
-        return {key: out.metrics[f"wm/{key}"].item() for key in ("reward_loss", "continue_loss", "decoder_loss", "kl_dyn")}
-
-    terminal = batch["is_terminal"]
-    every = torch.ones_like(terminal)
-    plain, heavy = losses(1.0, every), losses(4.0, every)
-    for key in ("reward_loss", "continue_loss"):  # every step terminal: the whole mean scales
-        assert heavy[key] == pytest.approx(4.0 * plain[key], rel=1e-5)
-    assert heavy["decoder_loss"] == pytest.approx(plain["decoder_loss"], rel=1e-6)
-    assert heavy["kl_dyn"] == pytest.approx(plain["kl_dyn"], rel=1e-6)
-    none = torch.zeros_like(terminal)
-    assert losses(4.0, none) == pytest.approx(losses(1.0, none), rel=1e-6)
-    some_plain, some_heavy = losses(1.0, terminal), losses(4.0, terminal)
-    assert some_plain["continue_loss"] < some_heavy["continue_loss"] < 4.0 * some_plain["continue_loss"]
-
-
 def test_fused_imagination_matches_the_plain_formulation(make_agent, fill_random):
     """The fused readouts inside the imagination loop (actor, reward and critic first layers
     with gradient, the continue head without, the last state read without the actor) must give

@@ -100,12 +100,12 @@ def test_retired_replay_and_update_settings_load_at_their_former_defaults_only()
     value names the retired key."""
     constants = {"discrete_actor_grad": "reinforce", "continuous_actor_grad": "backprop", "precision": "float32"}
     stored = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-              "model_updates": 1, "return_norm_scope": "all", **constants}
+              "model_updates": 1, "return_norm_scope": "all", "terminal_weight": 1.0, **constants}
     config = DreamerConfig.model_validate(stored)
     assert config == DreamerConfig()
     assert {k: record(config)[k] for k in constants} == constants  # the ids of runs made with them hold
     assert not (set(stored) - set(constants)) & set(record(config))
     for key, value in (("model_updates", 4), ("replay_recent_fraction", 0.5), ("return_norm_scope", "running"),
-                       ("continuous_actor_grad", "reinforce"), ("precision", "bfloat16")):
+                       ("continuous_actor_grad", "reinforce"), ("precision", "bfloat16"), ("terminal_weight", 20.0)):
         with pytest.raises(ValueError, match=f"'{key}' is a retired setting"):
             DreamerConfig.model_validate({key: value})

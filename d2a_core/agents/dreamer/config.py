@@ -49,9 +49,6 @@ class DreamerConfig(Section):
     decoder_scale: float = Field(1.0, ge=0)
     reward_scale: float = Field(1.0, ge=0)
     continue_scale: float = Field(1.0, ge=0)
-    terminal_weight: float = Field(
-        1.0, ge=0, description="scale of the reward and continue losses at steps that end an episode (1: DreamerV3)"
-    )
     extra_heads: list[HeadConfig] = Field(default_factory=list, description="extra world-model heads")
     # A reward that depends on a classifier's estimate at collection time (the assistant's
     # r_hat*(y_hat)) goes stale in replay: most of it was collected while the estimate was poor.
@@ -108,11 +105,12 @@ class DreamerConfig(Section):
     # --- execution
     device: str = Field("cpu", description="torch device, e.g. 'cpu' or 'cuda'")
 
-    omit_at_default = {"reward_relabel_head": None, "terminal_weight": 1.0, "action_cost": 0.0}
+    omit_at_default = {"reward_relabel_head": None, "action_cost": 0.0}
     # experiments that did not become defaults (docs/experiments/): replay weighted to the newest
-    # or to terminal windows, extra world-model updates, a return scale from running trajectories
+    # or to terminal windows, extra world-model updates, a return scale from running trajectories,
+    # the reward and continue losses weighted at episode ends (the assistant's; assistant-safety.md)
     retired = {"replay_recent_fraction": 0.0, "replay_recent_steps": 5000, "replay_terminal_fraction": 0.0,
-               "model_updates": 1, "return_norm_scope": "all"}
+               "model_updates": 1, "return_norm_scope": "all", "terminal_weight": 1.0}
     # settings with one possible value left, always recorded: kept in records for the ids made with
     # them (continuous actions learn by backprop through the dynamics; training runs in float32;
     # REINFORCE for continuous actions and bfloat16 autocast: docs/benchmarks.md)

@@ -124,10 +124,6 @@ class WorldModel(nn.Module):
         kl_loss, dyn, rep = kl_balance(
             observed.post_logits, observed.prior_logits, c.unimix, c.free_nats, c.kl_dyn_scale, c.kl_rep_scale
         )
-        if c.terminal_weight != 1.0:
-            # the steps that end an episode are ~2 % of a batch and carry its largest rewards
-            weight = 1.0 + (c.terminal_weight - 1.0) * batch["is_terminal"].float()
-            reward_loss, continue_loss = reward_loss * weight, continue_loss * weight
         per_step = (
             c.decoder_scale * decoder_loss
             + c.reward_scale * reward_loss
