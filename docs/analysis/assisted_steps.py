@@ -4,6 +4,7 @@ intervention_seen.py)."""
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Iterator
 
 import numpy as np
@@ -33,3 +34,15 @@ def assisted_steps(assistant: api.Assistant, human: api.Driver, episodes: int) -
                 done = terminated or truncated
     finally:
         env.close()
+
+
+def probe_parser(description: str, episodes: int) -> argparse.ArgumentParser:
+    """The probes' shared command line: STORE ASSISTANT HUMAN..., --episodes, --samples (prior
+    draws per imagined action)."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("store")
+    parser.add_argument("assistant")
+    parser.add_argument("humans", nargs="+", help="human checkpoint ids")
+    parser.add_argument("--episodes", type=int, default=episodes)
+    parser.add_argument("--samples", type=int, default=8)
+    return parser

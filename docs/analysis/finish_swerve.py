@@ -16,13 +16,12 @@ continue for the swerve that leaves the road.
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
 from d2a_core import api
 from d2a_core.sim.shared_control import blend
+from assisted_steps import probe_parser  # the sibling module (this folder is on sys.path)
 
 
 @torch.no_grad()
@@ -72,13 +71,8 @@ def probe(assistant: api.Assistant, human: api.Driver, episodes: int, start_m: f
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("store")
-    parser.add_argument("assistant")
-    parser.add_argument("humans", nargs="+", help="human checkpoint ids")
-    parser.add_argument("--episodes", type=int, default=3)
+    parser = probe_parser(__doc__.split("\n\n")[0], episodes=3)
     parser.add_argument("--from", dest="start_m", type=float, default=330.0, help="probe the steps past this s (m)")
-    parser.add_argument("--samples", type=int, default=8)
     args = parser.parse_args()
     assistant = api.load(args.assistant, store=args.store)
     print(f"assistant {assistant.id[:12]}")

@@ -21,15 +21,13 @@ actor does not; a best offset at or above 0 means the model itself pays for spee
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
 from d2a_core import api
 from d2a_core.agents.dreamer.distributions import symexp
 from d2a_core.sim.race_env import OPPONENT_FIELDS, PARTNER_FIELDS
-from assisted_steps import assisted_steps  # the sibling module (this folder is on sys.path)
+from assisted_steps import assisted_steps, probe_parser  # the sibling module (this folder is on sys.path)
 
 OFFSETS = (-0.6, -0.3, -0.15, 0.0, 0.15, 0.3)
 CLOSING_M = (-25.0, -3.0)
@@ -81,13 +79,8 @@ def probe_human(assistant: api.Assistant, human: api.Driver, episodes: int, hori
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("store")
-    parser.add_argument("assistant")
-    parser.add_argument("humans", nargs="+", help="human checkpoint ids")
-    parser.add_argument("--episodes", type=int, default=3)
+    parser = probe_parser(__doc__.split("\n\n")[0], episodes=3)
     parser.add_argument("--horizon", type=int, default=15)
-    parser.add_argument("--samples", type=int, default=8)
     args = parser.parse_args()
     assistant = api.load(args.assistant, store=args.store)
     offsets = " | ".join(f"{o:+.2f}" for o in OFFSETS)

@@ -23,13 +23,11 @@ holds that step's real effect on the expert's reward (a few tenths at most on th
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
 from d2a_core import api
-from assisted_steps import assisted_steps  # the sibling module (this folder is on sys.path)
+from assisted_steps import assisted_steps, probe_parser  # the sibling module (this folder is on sys.path)
 
 
 @torch.no_grad()
@@ -66,12 +64,7 @@ def probe_human(assistant: api.Assistant, human: api.Driver, episodes: int, samp
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("store")
-    parser.add_argument("assistant")
-    parser.add_argument("humans", nargs="+", help="human checkpoint ids")
-    parser.add_argument("--episodes", type=int, default=2)
-    parser.add_argument("--samples", type=int, default=8)
+    parser = probe_parser(__doc__.split("\n\n")[0], episodes=2)
     args = parser.parse_args()
     assistant = api.load(args.assistant, store=args.store)
     w_interv = float(assistant.artifact.config["assistant"]["reward"]["w_interv"])
