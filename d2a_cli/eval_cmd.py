@@ -45,7 +45,7 @@ def eval_assistants(
     """Paired evaluation: each human unassisted and with each assistant, on the same episodes."""
     # imported here, not at module level: it pulls in torch, which every other `d2a` command
     # would then pay for at start-up (seconds)
-    from d2a_core.evaluation.safety import DESCRIBED, SAFETY_MARGIN
+    from d2a_core.evaluation.safety import SAFETY_MARGIN
     from d2a_core.pipelines.evaluate import CRITERION, METRICS, evaluate
 
     result = evaluate(run.store(), track, pair, method=method, baselines=baseline or [], seeds=seeds, humans=humans,
@@ -73,7 +73,7 @@ def eval_assistants(
         for e in r["evaluations"]:
             for flag in e.get("safety_flags", []):
                 out_console.print(
-                    f"[bold red]safety:[/] {_title(e)} raises the {DESCRIBED[flag['metric']]} of the {flag['intent']} "
+                    f"[bold red]safety:[/] {_title(e)} raises the {_SHORT[flag['metric']]} of the {flag['intent']} "
                     f"{flag['group'].replace('_', '-')} humans by {flag['change']:+.2f} (more than "
                     f"{SAFETY_MARGIN:.2f})", highlight=False)
 

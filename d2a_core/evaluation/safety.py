@@ -21,8 +21,6 @@ episodes)."""
 SAFETY_METRICS = ("collision", "off_track")
 """The per-episode outcomes the rule bounds (0/1 each; their rates are compared)."""
 
-DESCRIBED = {"collision": "collision rate", "off_track": "off-track rate"}
-
 
 def breaks_rule(change: float | None) -> bool:
     """Whether a group's mean change in a crash rate breaks the rule (no value: nothing to break)."""

@@ -19,7 +19,7 @@ from collections import defaultdict
 from statistics import mean
 
 from d2a_core.artifacts import Store
-from d2a_core.evaluation.safety import SAFETY_MARGIN
+from d2a_core.evaluation.safety import breaks_rule
 from d2a_core.pipelines.evaluate import CRITERION
 from eval_table import GROUPS  # this script's folder is on the path when it runs
 F1_EACH, F1_MEAN = 0.90, 0.95
@@ -79,7 +79,7 @@ def misses(runs: list[dict], keys: list[tuple[str, str]]) -> list[str]:
                 out.append(f"{intent} weak: criterion not gained")
         for metric, name in (("collision", "collisions"), ("off_track", "off track")):
             change = mean(g[metric] for g in gs)
-            if round(change, 6) > SAFETY_MARGIN:
+            if breaks_rule(change):
                 out.append(f"{intent} {group.replace('_', '-')}: {name} {change:+.2f}")
     return out
 
