@@ -21,10 +21,10 @@ import numpy as np
 
 from d2a_core.artifacts import Store
 from d2a_core.sim.episode_log.reader import read_episode
+from eval_table import GROUPS  # this script's folder is on the path when it runs
 
 SPIN_RAD = 0.3  # sideslip (rad) past which a `quick` driver alone never recovered on the straightaway
 SLIDE_RAD = (0.1, 0.2)  # a slide still caught by counter-steering
-GROUPS = ("imperfect", "near_perfect")
 
 
 def episode_spin(store: Store, art_id: str, name: str) -> tuple[bool, np.ndarray, np.ndarray]:
