@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Optional
 
 import typer
 import yaml
@@ -20,13 +20,16 @@ def show(
     config_file: ConfigFileOpt = None,
     overrides: SetOpt = None,
     sources: Annotated[bool, typer.Option("--sources", help="Also show where each non-default value came from.")] = False,
+    pair: Annotated[Optional[str], typer.Option(
+        "--pair", help="The config of an assistant for this intent pair (e.g. left-right): with the "
+                       "preset's and file's `pairs.<pair>` values.")] = None,
     *,
     run: RunContext,
 ) -> None:
     """Resolve preset < --config file < --set overrides, validate, and print the result."""
-    resolved = config_mod.load(preset, config_file, overrides or [])
+    resolved = config_mod.load(preset, config_file, overrides or [], pair=pair)
     result = {"preset": preset, "config_file": resolved.config_file, "overrides": resolved.overrides,
-              "config": resolved.as_dict(), "sources": resolved.sources}
+              "pair": pair, "config": resolved.as_dict(), "sources": resolved.sources}
 
     def render(result: dict) -> None:
         out_console.print(yaml.safe_dump(result["config"], sort_keys=False).rstrip(), highlight=False)

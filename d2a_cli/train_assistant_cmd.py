@@ -51,7 +51,7 @@ def train_assistant(
     parse_pair(pair)  # a bad pair or method is a usage error before anything loads
     for name in method:
         get_method(name)
-    resolved = config_mod.load(preset, config_file, overrides or [])
+    resolved = config_mod.load(preset, config_file, overrides or [], pair=pair)
     store = run.store()
     results = []
     with contextlib.ExitStack() as cleanup:

@@ -58,3 +58,44 @@ def test_bad_yaml_missing_file_bad_set_and_unknown_preset(cli, tmp_path):
     not_mapping = tmp_path / "list.yaml"
     not_mapping.write_text("- 1\n- 2\n")
     assert cli("config", "show", "--config", str(not_mapping)).code == 2
+
+
+def test_a_pairs_section_applies_to_its_pair_only(cli, tmp_path):
+    """`pairs.<pair>` values take effect for that pair's runs (either order of its intents), over
+    the layer they sit in and under the later ones; other runs do not see them."""
+    shown = lambda *args: cli("config", "show", "--preset", "quick", *args, "--json")  # noqa: E731
+    assert shown().json["config"]["assistant"]["reward"]["w_interv"] == 1.0
+    assert shown("--pair", "pass-stay").json["config"]["assistant"]["reward"]["w_interv"] == 1.0
+    for pair in ("left-right", "right-left"):
+        res = shown("--pair", pair)
+        assert res.code == 0, res.stderr
+        assert res.json["config"]["assistant"]["reward"]["w_interv"] == 0.5
+        assert res.json["sources"]["assistant.reward.w_interv"].endswith("pairs.left-right")
+
+    user = tmp_path / "mine.yaml"
+    user.write_text("assistant:\n  reward:\n    w_interv: 0.8\n"
+                    "pairs:\n  pass-stay:\n    assistant:\n      reward:\n        w_interv: 0.25\n")
+    assert shown("--config", str(user)).json["config"]["assistant"]["reward"]["w_interv"] == 0.8
+    assert shown("--config", str(user), "--pair", "left-right").json["config"]["assistant"]["reward"]["w_interv"] == 0.8
+    assert shown("--config", str(user), "--pair", "stay-pass").json["config"]["assistant"]["reward"]["w_interv"] == 0.25
+    res = shown("--config", str(user), "--pair", "pass-stay", "--set", "assistant.reward.w_interv=0.3")
+    assert res.json["config"]["assistant"]["reward"]["w_interv"] == 0.3
+
+
+def test_a_bad_pairs_section_is_a_usage_error_naming_it(cli, tmp_path):
+    """A typo in a pair's values fails on every run, not only on that pair's; so does a key that
+    names no pair, and `--set pairs....`."""
+    user = tmp_path / "pairs.yaml"
+    user.write_text("pairs:\n  left-right:\n    assistant:\n      reward:\n        w_intrev: 0.5\n")
+    res = cli("config", "show", "--config", str(user), "--pair", "pass-stay", "--json")
+    assert res.code == 2
+    msg = res.json["error"]["message"]
+    assert "assistant.reward.w_intrev" in msg and f"{user}, pairs.left-right" in msg and "w_interv" in msg
+    user.write_text("pairs:\n  left-up:\n    assistant:\n      env_steps: 10\n")
+    res = cli("config", "show", "--config", str(user), "--json")
+    assert res.code == 2 and "'left-up' is not an intent pair" in res.json["error"]["message"]
+    user.write_text("pairs:\n  left-right: 3\n")
+    assert cli("config", "show", "--config", str(user), "--json").code == 2
+    res = cli("config", "show", "--set", "pairs.left-right.assistant.env_steps=10", "--json")
+    assert res.code == 2 and "pairs" in res.json["error"]["message"]
+    assert cli("config", "show", "--pair", "left-left", "--json").code == 2

@@ -135,7 +135,7 @@ def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistant
     notes = Store(store).get(again["run_id"]).manifest["provenance"]["notes"]
     assert set(notes["time_shares"]) >= {"learning", "acting/humans"}
     # where the config came from, beside the id (the same id came from the same preset either way)
-    assert notes["config_source"] == {"preset": "smoke", "config_file": None, "overrides": []}
+    assert notes["config_source"] == {"preset": "smoke", "config_file": None, "overrides": [], "pair": "pass-stay"}
     pop = Store(store).get("humans/straightaway/stay").manifest["provenance"]["notes"]
     assert pop["config_source"]["preset"] == "smoke" and pop["config_source"]["overrides"] == ["humans.checkpoints=4"]
 
@@ -150,6 +150,24 @@ def _train_one(cli, template, tmp_path, method: str, override: str):
     store = Store(store_path)
     run = res.json["assistants"][0]
     return store_path, store, store.get(run["id"]), run
+
+
+def test_an_assistant_takes_its_pairs_values_and_records_them(cli, pair_store_template, tmp_path):
+    """A `pairs:` section of the config file reaches the run of that pair only: the stored config
+    holds the pair's value and the run's config source names the pair."""
+    user = tmp_path / "pairs.yaml"
+    user.write_text("assistant:\n  checkpoints: 1\n"
+                    "pairs:\n  stay-pass:\n    assistant:\n      reward:\n        w_interv: 0.25\n"
+                    "  left-right:\n    assistant:\n      reward:\n        w_interv: 0.75\n")
+    store_path = copy_store(pair_store_template, tmp_path / "store")
+    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--config", str(user), "--json",
+              store=store_path)
+    assert res.code == 0, res.stderr
+    store = Store(store_path)
+    run = res.json["assistants"][0]
+    assert store.get(run["id"]).config["assistant"]["reward"]["w_interv"] == 0.25
+    source = store.get(run["run_id"]).manifest["provenance"]["notes"]["config_source"]
+    assert source["pair"] == "pass-stay" and source["config_file"] == str(user)
 
 
 def test_a_partner_window_is_recorded_and_evaluated_with(cli, pair_store_template, tmp_path):

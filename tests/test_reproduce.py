@@ -132,6 +132,14 @@ def test_a_cells_key_follows_its_inputs(tmp_path):
     again = expand(GridOptions(preset="smoke", methods=["dreamer"], seeds=1, overrides=["assistant.env_steps=480"]))
     b = {c.name: c for c in again}[a.name]
     assert prepare(b, outcomes, {})[2] != prepare(a, outcomes, {})[2]  # another config: another cell
+    # an assistant's config is its pair's: under `quick`, left-right takes its `pairs:` values
+    quick = {c.name: c for c in expand(GridOptions(preset="quick", pairs=["pass-stay", "left-right"],
+                                                   methods=["dreamer"], seeds=1))}
+    ps, lr = (quick[f"train-assistant/straightaway/{p}/dreamer/seed0"].config for p in ("pass-stay", "left-right"))
+    assert ps[3] == "pass-stay" and lr[3] == "left-right"
+    assert grid_run.config_fingerprint(*lr) != grid_run.config_fingerprint(*ps)
+    assert grid_run.config_fingerprint(*ps) == grid_run.config_fingerprint(*ps[:3])
+    assert quick["train-humans/straightaway/left/seed0"].config[3] is None
     # nothing stored: every cell pending, and a dry run writes nothing
     assert {o.status for o in plan(cells, Store(tmp_path / "none"))} == {"pending"}
     assert not (tmp_path / "none").exists()

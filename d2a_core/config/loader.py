@@ -2,6 +2,11 @@
 
 Every leaf value remembers where it came from (the preset file, the user's file or the `--set`
 argument), so a validation error can name the key, the offending value and its source.
+
+A preset or file may hold a `pairs:` section: per intent pair (`left-right`), a partial config
+merged over that layer's own values when a run is for that pair (an assistant's training), so one
+preset can carry a setting measured to serve one pair and not the other. Its key names the pair's
+two intents in either order. Every pair's values are validated whatever the run's pair.
 """
 
 from __future__ import annotations
@@ -81,6 +86,7 @@ class ResolvedConfig:
     config_file: str | None
     overrides: list[str]
     sources: dict[str, str] = field(default_factory=dict)
+    pair: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Every key with its value (for display)."""
@@ -93,7 +99,10 @@ class ResolvedConfig:
     def source(self) -> dict[str, Any]:
         """Where the config came from (preset, file, `--set` overrides): recorded beside a run's
         result, outside its id, so a reader knows the preset without comparing configs."""
-        return {"preset": self.preset, "config_file": self.config_file, "overrides": list(self.overrides)}
+        out = {"preset": self.preset, "config_file": self.config_file, "overrides": list(self.overrides)}
+        if self.pair is not None:
+            out["pair"] = self.pair
+        return out
 
     def section(self, *names: str) -> dict[str, Any]:
         """The named top-level sections of the record only: what an artifact actually depends on."""
@@ -216,36 +225,98 @@ def _reject_non_finite(tree: Any, sources: dict[str, str], prefix: str = "") -> 
         _reject_non_finite(value, sources, path + ".")
 
 
+PAIRS_KEY = "pairs"
+
+
+def _pair_intents(name: Any, label: str, intents: Iterable[str] | None) -> frozenset[str]:
+    """The two intents a `pairs:` key (or a run's pair) names; a ConfigError for any other key."""
+    parts = name.split("-") if isinstance(name, str) else []
+    known = list(intents) if intents is not None else None
+    if len(parts) != 2 or parts[0] == parts[1] or not all(parts) or (
+            known is not None and not all(p in known for p in parts)):
+        allowed = f" (intents: {', '.join(known)})" if known else ""
+        raise ConfigError(f"{label}: {name!r} is not an intent pair; write two distinct intents as "
+                          f"'a-b', e.g. pairs.left-right{allowed}")
+    return frozenset(parts)
+
+
+def _split_pairs(layer: dict[str, Any], label: str,
+                 intents: Iterable[str] | None) -> tuple[dict[str, Any], dict[str, tuple[str, dict]]]:
+    """(the layer without its `pairs:` section, {pair: (its source label, partial config)})."""
+    layer = dict(layer)
+    section = layer.pop(PAIRS_KEY, None)
+    if section is None:
+        return layer, {}
+    if not isinstance(section, dict):
+        raise ConfigError(f"{label}: '{PAIRS_KEY}' must map an intent pair to the values it changes, "
+                          f"got {type(section).__name__}")
+    out: dict[str, tuple[str, dict]] = {}
+    for name, values in section.items():
+        where = f"{label}, {PAIRS_KEY}.{name}"
+        _pair_intents(name, f"{label}, {PAIRS_KEY}", intents)
+        if not isinstance(values, dict):
+            raise ConfigError(f"{where}: must be a mapping of sections, got {type(values).__name__}")
+        if PAIRS_KEY in values:
+            raise ConfigError(f"{where}: a pair's values cannot hold another '{PAIRS_KEY}' section")
+        out[name] = (where, values)
+    return layer, out
+
+
+def _validate(schema: type[BaseModel], merged: dict[str, Any], sources: dict[str, str]) -> BaseModel:
+    _reject_non_finite(merged, sources)
+    try:
+        return schema.model_validate(merged)
+    except ValidationError as exc:
+        raise ConfigError(_describe_errors(exc, schema, sources)) from None
+
+
 def resolve_config(
     schema: type[BaseModel],
     preset: str = "quick",
     config_file: str | Path | None = None,
     overrides: Iterable[str] = (),
+    pair: str | None = None,
+    intents: Iterable[str] | None = None,
 ) -> ResolvedConfig:
-    """Merge preset < file < overrides and validate against `schema`."""
+    """Merge preset < its `pairs.<pair>` < file < its `pairs.<pair>` < overrides and validate
+    against `schema`. `pair` is the run's intent pair (None: a run for no pair, which takes no
+    `pairs:` values); `intents`, when given, are the intent names a pair may use."""
     if preset not in available_presets():
         raise ConfigError(f"unknown preset {preset!r}; choose one of {', '.join(available_presets())}")
+    intents = list(intents) if intents is not None else None
+    wanted = _pair_intents(pair, "the run's pair", intents) if pair is not None else None
     preset_path = PRESET_DIR / f"{preset}.yaml"
-    sources: dict[str, str] = {}
-    merged: dict[str, Any] = {}
-    _merge(merged, _load_mapping(preset_path, f"preset '{preset}' ({preset_path})"), sources,
-           f"preset '{preset}' ({preset_path})")
+    layers = [(f"preset '{preset}' ({preset_path})", _load_mapping(preset_path, f"preset '{preset}' ({preset_path})"))]
     if config_file is not None:
         path = Path(config_file)
-        _merge(merged, _load_mapping(path, str(path)), sources, str(path))
+        layers.append((str(path), _load_mapping(path, str(path))))
+    sources: dict[str, str] = {}
+    merged: dict[str, Any] = {}
+    others: list[tuple[dict[str, Any], dict[str, str], str, dict]] = []
+    for label, data in layers:
+        base, by_pair = _split_pairs(data, label, intents)
+        _merge(merged, base, sources, label)
+        for name, (where, values) in by_pair.items():
+            if wanted is not None and _pair_intents(name, where, intents) == wanted:
+                _merge(merged, values, sources, where)
+            else:  # checked over the layers before it, so a typo fails now, not on the other pair's run
+                others.append((copy.deepcopy(merged), dict(sources), where, values))
     overrides = list(overrides)
     for text in overrides:
         key, value = parse_override(text)
+        if key.split(".")[0] == PAIRS_KEY:
+            raise ConfigError(f"--set {text!r}: a pair's values are set in a preset or --config file; "
+                              "--set applies to the run's own pair (e.g. --set assistant.reward.w_interv=0.5)")
         _merge(merged, _nest(key, value), sources, f"--set {text}")
-    _reject_non_finite(merged, sources)
-    try:
-        config = schema.model_validate(merged)
-    except ValidationError as exc:
-        raise ConfigError(_describe_errors(exc, schema, sources)) from None
+    for base, base_sources, where, values in others:
+        _merge(base, values, base_sources, where)
+        _validate(schema, base, base_sources)
+    config = _validate(schema, merged, sources)
     return ResolvedConfig(
         config=config,
         preset=preset,
         config_file=str(config_file) if config_file is not None else None,
         overrides=overrides,
         sources=sources,
+        pair=pair,
     )

@@ -113,8 +113,9 @@ class Cell:
     """The alias it yields (for eval and intent-swap: the prefix of its per-method-and-seed aliases)."""
     expects: tuple[tuple[str, DepId], ...] = ()
     """Aliases that must point at a dependency's artifact when the cell starts."""
-    config: tuple[str, str | None, tuple[str, ...]] | None = None
-    """(preset, config file, overrides) of a config-taking cell, to fingerprint the resolved config."""
+    config: tuple[str, str | None, tuple[str, ...], str | None] | None = None
+    """(preset, config file, overrides, intent pair or None) of a config-taking cell, to fingerprint
+    the resolved config (an assistant's takes its pair's `pairs:` values)."""
 
     @property
     def uses_device(self) -> bool:
@@ -208,7 +209,8 @@ def expand(opts: GridOptions) -> list[Cell]:
                 argv += ["--config", opts.config_file]
             for o in mine:
                 argv += ["--set", o]
-            config = (opts.preset, opts.config_file, tuple(mine))
+            config = (opts.preset, opts.config_file, tuple(mine),
+                      argv[argv.index("--pair") + 1] if "--pair" in argv else None)
         elif mine:
             raise UsageError(f"--set {mine[0]!r} reaches cell {name}, but `d2a {kind}` takes no config; "
                              f"scope it with PATTERN:key=value (e.g. train-assistant:{mine[0]})")

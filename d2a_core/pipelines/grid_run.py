@@ -96,15 +96,17 @@ def cell_key(argv: list[str], config_fingerprint: str | None, expects: dict[str,
     return content_key(identity)
 
 
-def config_fingerprint(preset: str, config_file: str | None, overrides: tuple[str, ...]) -> str:
-    """The sha256 of the resolved config (so an edited preset or config file is a new key); a
-    config that does not resolve gets its error instead, and the cell fails with it when it runs."""
+def config_fingerprint(preset: str, config_file: str | None, overrides: tuple[str, ...],
+                       pair: str | None = None) -> str:
+    """The sha256 of the resolved config, for `pair`'s runs when given (so an edited preset or
+    config file is a new key); a config that does not resolve gets its error instead, and the cell
+    fails with it when it runs."""
     from d2a_core import config as config_mod
     from d2a_core.artifacts.manifest import content_key
     from d2a_core.errors import D2AError
 
     try:
-        resolved = config_mod.load(preset, Path(config_file) if config_file else None, list(overrides))
+        resolved = config_mod.load(preset, Path(config_file) if config_file else None, list(overrides), pair=pair)
     except D2AError as exc:
         return f"invalid: {exc}"
     return content_key(resolved.record())

@@ -149,9 +149,9 @@ def collect(store: Store, tracks: Sequence[str] | None = None, pairs: Sequence[s
 
     presets: dict[str, str] = {}
 
-    def preset_of(art_id: str) -> str:
+    def preset_of(art_id: str, pair: str | None = None) -> str:
         if art_id not in presets:
-            presets[art_id] = describe(store.get(art_id).config)
+            presets[art_id] = describe(store.get(art_id).config, pair)
         return presets[art_id]
 
     seen_tracks: set[str] = set()
@@ -175,14 +175,14 @@ def collect(store: Store, tracks: Sequence[str] | None = None, pairs: Sequence[s
             out.evaluations.append(Evaluation(
                 out.use(art_id), alias, **key, heldout=m["heldout"] is not None, result=result,
                 assisted=stored.get("assisted", []), files=frozenset(store.get(art_id).files),
-                assistant=out.use(assistant), preset=preset_of(assistant)))
+                assistant=out.use(assistant), preset=preset_of(assistant, key["pair"])))
         elif pattern is SWAP_ALIAS and kind_of(art_id) == "intent-swap":
             result = store.read_json(art_id, "swap.json")["result"]
             out.use(result["assistant"])
-            out.swaps.append(Swap(out.use(art_id), alias, **key, result=result, preset=preset_of(result["assistant"])))
+            out.swaps.append(Swap(out.use(art_id), alias, **key, result=result, preset=preset_of(result["assistant"], key["pair"])))
         elif pattern is RUN_ALIAS and kind_of(art_id) == "assistant-run":
             out.runs.append(Run(out.use(art_id), alias, **key, run=store.read_json(art_id, "run.json"),
-                                curve=read_jsonl(store, art_id, "curve.jsonl"), preset=preset_of(art_id)))
+                                curve=read_jsonl(store, art_id, "curve.jsonl"), preset=preset_of(art_id, key["pair"])))
 
     for name, asked, seen in (("track", tracks, seen_tracks), ("pair", pairs, seen_pairs)):
         unknown = sorted(set(asked or ()) - seen)

@@ -26,14 +26,14 @@ MAX_LISTED = 8
 
 
 @functools.lru_cache(maxsize=None)
-def _preset_values(name: str, assistant: bool = False) -> dict[str, Any]:
-    """The preset's values; for an assistant's record (`assistant`), its `dreamer` section is the
-    assistant's learner, so it holds the preset's `assistant.*` overrides of it."""
+def _preset_values(name: str, assistant: bool = False, pair: str | None = None) -> dict[str, Any]:
+    """The preset's values (for `pair`'s runs, with its `pairs.<pair>` values); for an assistant's
+    record (`assistant`), its `dreamer` section is the assistant's learner, so it holds the
+    preset's `assistant.*` overrides of it."""
     # imported here: the schema pulls in the simulator's configs, which only this needs
-    from d2a_core.config.loader import resolve_config
-    from d2a_core.config.schema import Config
+    from d2a_core.config import load
 
-    config = resolve_config(Config, name).config
+    config = load(name, pair=pair).config
     if assistant:
         config = config.model_copy(update={"dreamer": config.dreamer.model_copy(
             update=assistant_dreamer_overrides(config.assistant))})
@@ -75,12 +75,13 @@ def _with_neutral_additions(values: Mapping[str, Any], section: type) -> dict[st
     return filled
 
 
-def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]:
-    """(values of the record checked, 'key=recorded value' for each that differs from the preset)."""
+def differences(record: Mapping[str, Any], preset: str, pair: str | None = None) -> tuple[int, list[str]]:
+    """(values of the record checked, 'key=recorded value' for each that differs from the preset,
+    as the preset resolves for `pair`'s runs)."""
     from d2a_core.config.schema import Config
 
     checked, differ = 0, []
-    resolved = _preset_values(preset, assistant="assistant" in record)
+    resolved = _preset_values(preset, assistant="assistant" in record, pair=pair)
     record = _with_neutral_additions(record, Config)
     # a learner value the record's assistant section sets is named there, not twice; unset, the
     # learner's own value (its `dreamer` section) is the one compared
@@ -98,13 +99,14 @@ def differences(record: Mapping[str, Any], preset: str) -> tuple[int, list[str]]
     return checked, sorted(differ)
 
 
-def describe(record: Mapping[str, Any] | None) -> str:
-    """'smoke', 'smoke, except humans.checkpoints=4', or 'custom (...)'."""
+def describe(record: Mapping[str, Any] | None, pair: str | None = None) -> str:
+    """'smoke', 'smoke, except humans.checkpoints=4', or 'custom (...)'; `pair`: the intent pair
+    the artifact was made for (its preset's `pairs.<pair>` values are the preset's there)."""
     if not record:
         return "unknown (no config recorded)"
     scored = []
     for order, name in enumerate(available_presets()):
-        checked, differ = differences(record, name)
+        checked, differ = differences(record, name, pair)
         if checked:
             scored.append((len(differ), -checked, order, name, differ))
     if not scored:
