@@ -123,10 +123,13 @@ def test_a_side_run_with_no_alias_leaves_the_method_and_seed_aliases(cli, traine
 
 def test_same_seed_and_config_give_the_same_assistant_ids(cli, trained_assistants, pair_store_template, tmp_path):
     """Trained again in a fresh copy of the same populations: the same checkpoint and run ids
-    (timings live in the manifest's provenance, outside the id)."""
+    (timings live in the manifest's provenance, outside the id), also when a value the first run
+    took by default is given on the command line (`--device cpu`: the same value as another
+    string object, which once changed the pickled checkpoint's bytes)."""
     store = copy_store(pair_store_template, tmp_path)
     # another interpreter (its own string-hash seed), not another child of the tests' CLI zygote
-    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--json", store=store, fresh_process=True)
+    res = cli("train-assistant", *PAIR, "--method", "dreamer", *SMOKE, "--device", "cpu", "--json", store=store,
+              fresh_process=True)
     assert res.code == 0, res.stderr
     again = res.json["assistants"][0]
     before = next(r for r in trained_assistants[1]["assistants"] if r["method"] == "dreamer")

@@ -248,8 +248,9 @@ def test_same_seed_and_config_give_the_same_population_id(cli, fresh_track_store
     fresh = tmp_path / "fresh"
     assert cli("make-track", "straightaway", *SMOKE, "--json", store=fresh).code == 0
     # another interpreter (its own string-hash seed), not another child of the tests' CLI zygote
-    second = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--json", store=fresh,
-                 fresh_process=True)
+    # and `--device cpu` spelled out: the first run's default, as another string object
+    second = cli("train-humans", "--intent", "stay", "--track", "straightaway", *SMOKE, "--device", "cpu", "--json",
+                 store=fresh, fresh_process=True)
     assert second.code == 0, second.stderr
     a, b = first.json["populations"][0], second.json["populations"][0]
     assert not b["cached"] and a["id"] == b["id"]

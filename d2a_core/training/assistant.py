@@ -44,6 +44,7 @@ from d2a_core.evaluation.metrics import aggregate
 from d2a_core.evaluation.paired import PanelHuman, paired_summary, panel
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.training.allocator import keep_freed_memory
+from d2a_core.training.checkpoint_bytes import agent_bytes
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.run_inputs import TrackBundle, load_population_groups, load_track_bundle, parse_pair
 from d2a_core.stored_agents import load_human
@@ -340,11 +341,6 @@ def _steps_npz(logs: Sequence[dict[str, Any]]) -> bytes:
     return buffer.getvalue()
 
 
-def _agent_bytes(agent) -> bytes:
-    buffer = io.BytesIO()
-    torch.save(agent.state_dict(include_replay=False), buffer)
-    return buffer.getvalue()
-
 
 def _store_checkpoint(store: Store, agent, the_panel, unassisted, intents, inputs, env_steps, ac, config_record,
                       seed, tags, evaluate_panel) -> dict[str, Any]:
@@ -354,7 +350,7 @@ def _store_checkpoint(store: Store, agent, the_panel, unassisted, intents, input
     fraction = round(env_steps / ac.env_steps, 6)
     with store.create("assistant", inputs=inputs, config=config_record, seed=seed,
                       labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
-        writer.add_bytes("agent.pt", _agent_bytes(agent))
+        writer.add_bytes("agent.pt", agent_bytes(agent))
         writer.add_json("eval.json", {"summary": summary, "panel": [vars(h) for h in the_panel],
                                       "assisted": assisted})
         writer.add_bytes("steps.npz", _steps_npz(step_logs))

@@ -19,7 +19,6 @@ returned from the store instead of training again, marked `cached` with the code
 
 from __future__ import annotations
 
-import io
 import shutil
 import time
 from collections import deque
@@ -44,6 +43,7 @@ from d2a_core.objectives.rewards import INTENTS
 from d2a_core.sim.race_env import RaceEnv
 from d2a_core.run_inputs import TrackBundle, load_track_bundle
 from d2a_core.training.allocator import keep_freed_memory
+from d2a_core.training.checkpoint_bytes import agent_bytes
 from d2a_core.training.code_version import TRAINING_CODE_VERSION
 from d2a_core.training.config import HumansConfig
 from d2a_core.training.live_curve import LiveCurve
@@ -58,11 +58,6 @@ SECTIONS = ("env", "reward", "vehicle", "world", "dreamer", "humans")
 
 ProgressFn = Callable[[dict[str, Any]], None]
 
-
-def _agent_bytes(agent: DreamerAgent) -> bytes:
-    buffer = io.BytesIO()
-    torch.save(agent.state_dict(include_replay=False), buffer)
-    return buffer.getvalue()
 
 
 def train_population(
@@ -286,7 +281,7 @@ def _store_checkpoint(store: Store, agent: DreamerAgent, bundle: TrackBundle, ma
         fraction = round(env_steps / hc.env_steps, 6)
         with store.create("human", inputs=[bundle.track_id, *bundle.replay_ids], config=config_record, seed=seed,
                           labels={**tags, "env_step": env_steps, "fraction": fraction}) as writer:
-            writer.add_bytes("agent.pt", _agent_bytes(agent))
+            writer.add_bytes("agent.pt", agent_bytes(agent))
             writer.add_json("eval.json", {"metrics": metrics, "episodes": episodes})
             for log in sorted(Path(logs).glob("*.mcap")):  # where the checkpoint fails, for Foxglove
                 writer.add_file(f"episodes/{log.name}", log)
