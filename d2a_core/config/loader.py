@@ -240,25 +240,26 @@ def _pair_intents(name: Any, label: str, intents: Iterable[str] | None) -> froze
     return frozenset(parts)
 
 
-def _split_pairs(layer: dict[str, Any], label: str,
-                 intents: Iterable[str] | None) -> tuple[dict[str, Any], dict[str, tuple[str, dict]]]:
-    """(the layer without its `pairs:` section, {pair: (its source label, partial config)})."""
+def _split_pairs(layer: dict[str, Any], label: str, intents: Iterable[str] | None
+                 ) -> tuple[dict[str, Any], list[tuple[frozenset[str], str, dict]]]:
+    """(the layer without its `pairs:` section, [(a pair's intents, its source label, its partial
+    config)])."""
     layer = dict(layer)
     section = layer.pop(PAIRS_KEY, None)
     if section is None:
-        return layer, {}
+        return layer, []
     if not isinstance(section, dict):
         raise ConfigError(f"{label}: '{PAIRS_KEY}' must map an intent pair to the values it changes, "
                           f"got {type(section).__name__}")
-    out: dict[str, tuple[str, dict]] = {}
+    out = []
     for name, values in section.items():
         where = f"{label}, {PAIRS_KEY}.{name}"
-        _pair_intents(name, f"{label}, {PAIRS_KEY}", intents)
+        pair = _pair_intents(name, f"{label}, {PAIRS_KEY}", intents)
         if not isinstance(values, dict):
             raise ConfigError(f"{where}: must be a mapping of sections, got {type(values).__name__}")
         if PAIRS_KEY in values:
             raise ConfigError(f"{where}: a pair's values cannot hold another '{PAIRS_KEY}' section")
-        out[name] = (where, values)
+        out.append((pair, where, values))
     return layer, out
 
 
@@ -296,8 +297,8 @@ def resolve_config(
     for label, data in layers:
         base, by_pair = _split_pairs(data, label, intents)
         _merge(merged, base, sources, label)
-        for name, (where, values) in by_pair.items():
-            if wanted is not None and _pair_intents(name, where, intents) == wanted:
+        for pair_intents, where, values in by_pair:
+            if pair_intents == wanted:
                 _merge(merged, values, sources, where)
             else:  # checked over the layers before it, so a typo fails now, not on the other pair's run
                 others.append((copy.deepcopy(merged), dict(sources), where, values))

@@ -198,7 +198,7 @@ def expand(opts: GridOptions) -> list[Cell]:
     cells: list[Cell] = []
 
     def add(name: str, kind: str, argv: list[Arg], deps: list[str], artifact: str,
-            expects: Sequence[tuple[str, DepId]] = ()) -> Cell:
+            expects: Sequence[tuple[str, DepId]] = (), pair: str | None = None) -> Cell:
         mine = [o for scope, o in overrides if _applies(scope, name, kind)]
         config = None
         if kind not in CONFIG_KINDS:  # unscoped overrides are for the config-taking cells only
@@ -209,8 +209,7 @@ def expand(opts: GridOptions) -> list[Cell]:
                 argv += ["--config", opts.config_file]
             for o in mine:
                 argv += ["--set", o]
-            config = (opts.preset, opts.config_file, tuple(mine),
-                      argv[argv.index("--pair") + 1] if "--pair" in argv else None)
+            config = (opts.preset, opts.config_file, tuple(mine), pair)
         elif mine:
             raise UsageError(f"--set {mine[0]!r} reaches cell {name}, but `d2a {kind}` takes no config; "
                              f"scope it with PATTERN:key=value (e.g. train-assistant:{mine[0]})")
@@ -252,7 +251,7 @@ def expand(opts: GridOptions) -> list[Cell]:
                     cell = add(f"train-assistant/{track}/{pair}/{method}/seed{seed}", "train-assistant",
                                ["train-assistant", "--track", track, "--pair", pair, "--method", method,
                                 *pop_args, "--seed", str(seed)],
-                               pop_cells, f"assistants/{track}/{pair}/{method}/seed{seed}")
+                               pop_cells, f"assistants/{track}/{pair}/{method}/seed{seed}", pair=pair)
                     assistants.append(cell.name)
             which = ["--track", track, "--pair", pair, "--method", main,
                      *(a for m in others for a in ("--baseline", m)), *(a for s in seeds for a in ("--seed", str(s)))]

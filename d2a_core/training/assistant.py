@@ -341,7 +341,6 @@ def _steps_npz(logs: Sequence[dict[str, Any]]) -> bytes:
     return buffer.getvalue()
 
 
-
 def _store_checkpoint(store: Store, agent, the_panel, unassisted, intents, inputs, env_steps, ac, config_record,
                       seed, tags, evaluate_panel) -> dict[str, Any]:
     assisted = evaluate_panel(agent, steps=True)

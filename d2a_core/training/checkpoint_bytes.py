@@ -32,13 +32,9 @@ def _interned(obj: Any) -> Any:
     return obj
 
 
-def torch_bytes(obj: Any) -> bytes:
-    """torch.save of `obj` into memory, with its strings interned (see the module docstring)."""
-    buffer = io.BytesIO()
-    torch.save(_interned(obj), buffer)
-    return buffer.getvalue()
-
-
 def agent_bytes(agent: Any) -> bytes:
-    """The checkpoint file of a Dreamer-family agent (its state without the replay)."""
-    return torch_bytes(agent.state_dict(include_replay=False))
+    """The checkpoint file of a Dreamer-family agent: torch.save of its state without the replay,
+    strings interned (see the module docstring)."""
+    buffer = io.BytesIO()
+    torch.save(_interned(agent.state_dict(include_replay=False)), buffer)
+    return buffer.getvalue()
